@@ -1,0 +1,14 @@
+# Warnings for the project's own targets (not for third-party headers, which come in as SYSTEM).
+add_library(gonio_warnings INTERFACE)
+add_library(gonio::warnings ALIAS gonio_warnings)
+target_compile_options(gonio_warnings INTERFACE
+  -Wall -Wextra -Wpedantic -Wshadow -Wnon-virtual-dtor -Wcast-align -Wnull-dereference
+  -Wdouble-promotion -Wimplicit-fallthrough
+  $<$<BOOL:${GONIO_WERROR}>:-Werror>)
+
+if(GONIO_SANITIZE)
+  # -fno-sanitize-recover: a UBSan finding fails the test instead of printing and going on.
+  add_compile_options(-fsanitize=address,undefined -fno-sanitize-recover=all
+                      -fno-omit-frame-pointer)
+  add_link_options(-fsanitize=address,undefined)
+endif()

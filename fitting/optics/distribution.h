@@ -1,0 +1,271 @@
+// Microfacet normal distributions D(m), their Smith masking G1, and their samplers.
+//
+// Walter, Marschner, Li, Torrance 2007 ("Microfacet models for refraction through rough surfaces"),
+// section 5.2. All three are isotropic height-field distributions: D(m) = 0 for m.n <= 0, and
+//   integral over the hemisphere of D(m) (m.n) dw_m = 1                       (projected area)
+// Their samplers draw m with the density p_m(m) = D(m) |m.n| (eq. 24) from two uniform variates.
+//
+// Every distribution satisfies the MicrofacetDistribution concept below:
+//   T D(m)                      distribution of normals, 1/sr
+//   T Lambda(w)                 Smith's Lambda for direction w (either hemisphere; uses |tan
+//   theta|) T G1(w)                     Smith masking for a facet facing w, 1 / (1 + Lambda) or its
+//                               rational approximation
+//   T G1(w, m)                  G1(w) times the sidedness factor chi+((w.m)/(w.n)) of eq. 26/34
+//   Vec3<T> SampleWm(u)         m ~ D(m)|m.n|            (eq. 28-29, 31-32, 35-36)
+//   T PdfWm(m)                  D(m)|m.n|, density of SampleWm over solid angle
+//
+// Phong's width is an exponent, the others' a slope-like alpha; RoughnessToPhong() relates them.
+#pragma once
+
+#include <concepts>
+
+#include "fitting/optics/vecmath.h"
+
+namespace gonio::optics {
+
+// Which Smith G1 a Beckmann distribution evaluates. The rational form (eq. 27) avoids erf at a
+// maximum relative error of ~0.35 % (measured in tests/fitting; cost ratio in docs/optics.md).
+enum class SmithG1 { kExact, kRational };
+
+// Walter's rational approximation to the Beckmann Smith G1 (eq. 27), as a function of
+// a = 1 / (alpha tan theta). Exceeds 1 by up to ~6e-5 just below a = 1.6 (the published fit is
+// not clamped; we keep it as published so that it is the paper's function).
+template <typename T>
+T SmithG1RationalBeckmann(const T& a) {
+  if (a >= T(1.6)) return T(1);
+  return (T(3.535) * a + T(2.181) * a * a) / (T(1) + T(2.276) * a + T(2.577) * a * a);
+}
+
+// Exact Beckmann Smith G1 (eq. 26) as a function of a = 1 / (alpha tan theta).
+template <typename T>
+T SmithG1ExactBeckmann(const T& a) {
+  using std::erf;
+  using std::exp;
+  using std::sqrt;
+  if (a <= T(0)) return T(0);
+  if (a > T(25)) return T(1);  // erf(a) = 1 and exp(-a^2) = 0 in double precision
+  return T(2) / (T(1) + erf(a) + exp(-a * a) / (a * sqrt(T(kPi))));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Beckmann, eq. 25 (D), 26 (G1 exact), 27 (G1 rational), 28-29 (sampling). alpha_b > 0.
+template <typename T>
+class BeckmannDistribution {
+ public:
+  using Scalar = T;
+
+  explicit BeckmannDistribution(T alpha, SmithG1 g1 = SmithG1::kExact) : alpha_(alpha), g1_(g1) {}
+
+  const T& alpha() const { return alpha_; }
+  SmithG1 g1_form() const { return g1_; }
+
+  // eq. 25: D(m) = chi+(m.n) exp(-tan^2 theta_m / alpha^2) / (pi alpha^2 cos^4 theta_m)
+  T D(const Vec3<T>& wm) const {
+    using std::exp;
+    const T cos2 = Cos2Theta(wm);
+    if (CosTheta(wm) <= T(0)) return T(0);
+    const T tan2 = Sin2Theta(wm) / cos2;
+    const T e = tan2 / (alpha_ * alpha_);
+    if (e > T(700)) return T(0);  // exp underflows; also avoids 0/0 when cos^4 underflows
+    return exp(-e) / (T(kPi) * alpha_ * alpha_ * cos2 * cos2);
+  }
+
+  // a = 1 / (alpha tan theta_v) of eq. 26; +inf (returned as a large value) along the normal.
+  T A(const Vec3<T>& w) const {
+    using std::sqrt;
+    const T sin2 = Sin2Theta(w);
+    if (sin2 <= T(0)) return T(1e30);
+    return AbsCosTheta(w) / (alpha_ * sqrt(sin2));
+  }
+
+  T G1(const Vec3<T>& w) const {
+    const T a = A(w);
+    return g1_ == SmithG1::kExact ? SmithG1ExactBeckmann(a) : SmithG1RationalBeckmann(a);
+  }
+  T G1(const Vec3<T>& w, const Vec3<T>& wm) const {
+    return Dot(w, wm) * CosTheta(w) > T(0) ? G1(w) : T(0);
+  }
+  // Lambda = 1/G1 - 1; +inf at the horizon (G1 = 0), 0 along the normal.
+  T Lambda(const Vec3<T>& w) const { return T(1) / G1(w) - T(1); }
+
+  // eq. 28-29: theta_m = arctan sqrt(-alpha^2 log(1 - xi_1)), phi_m = 2 pi xi_2.
+  Vec3<T> SampleWm(Point2 u) const {
+    using std::log;
+    using std::sqrt;
+    const T tan2 = -alpha_ * alpha_ * T(std::log1p(-u.x));
+    const T cosTheta = T(1) / sqrt(T(1) + tan2);
+    const T sinTheta = SafeSqrt(T(1) - cosTheta * cosTheta);
+    return SphericalDirection(sinTheta, cosTheta, T(2 * kPi * u.y));
+  }
+  T PdfWm(const Vec3<T>& wm) const { return D(wm) * AbsCosTheta(wm); }
+
+  // The widened width of section 5.3 for sampling at incidence w: alpha' = (1.2 - 0.2 sqrt|i.n|)
+  // alpha. Sampling with it bounds the eq. 41 weights (to about 4) at grazing incidence.
+  BeckmannDistribution Widened(const Vec3<T>& wi) const {
+    using std::sqrt;
+    return BeckmannDistribution((T(1.2) - T(0.2) * sqrt(AbsCosTheta(wi))) * alpha_, g1_);
+  }
+
+ private:
+  T alpha_;
+  SmithG1 g1_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// GGX (Trowbridge-Reitz), eq. 33 (D), 34 (G1), 35-36 (sampling); visible normals after Heitz
+// 2018 (the density of eq. 3b of seeds/geometric-microfacet-bsdf.md). alpha_g > 0.
+template <typename T>
+class GgxDistribution {
+ public:
+  using Scalar = T;
+
+  explicit GgxDistribution(T alpha) : alpha_(alpha) {}
+
+  const T& alpha() const { return alpha_; }
+
+  // eq. 33, rearranged as alpha^2 / (pi (alpha^2 cos^2 + sin^2)^2) so it stays finite
+  // (and correct) as cos theta_m -> 0.
+  T D(const Vec3<T>& wm) const {
+    if (CosTheta(wm) <= T(0)) return T(0);
+    const T a2 = alpha_ * alpha_;
+    const T d = a2 * Cos2Theta(wm) + Sin2Theta(wm);
+    return a2 / (T(kPi) * d * d);
+  }
+
+  // eq. 34: G1 = 2 / (1 + sqrt(1 + alpha^2 tan^2 theta_v)); Lambda = (sqrt(1 + a^2 t^2) - 1) / 2,
+  // written with cos^2 in the denominator only after the product so the horizon gives +inf.
+  T Lambda(const Vec3<T>& w) const {
+    using std::sqrt;
+    const T cos2 = Cos2Theta(w);
+    if (cos2 <= T(0)) return T(1e300);
+    const T a2t2 = alpha_ * alpha_ * Sin2Theta(w) / cos2;
+    return (sqrt(T(1) + a2t2) - T(1)) / T(2);
+  }
+  T G1(const Vec3<T>& w) const {
+    using std::sqrt;
+    const T cos2 = Cos2Theta(w);
+    if (cos2 <= T(0)) return T(0);
+    return T(2) / (T(1) + sqrt(T(1) + alpha_ * alpha_ * Sin2Theta(w) / cos2));
+  }
+  T G1(const Vec3<T>& w, const Vec3<T>& wm) const {
+    return Dot(w, wm) * CosTheta(w) > T(0) ? G1(w) : T(0);
+  }
+
+  // eq. 35-36: theta_m = arctan(alpha sqrt(xi_1) / sqrt(1 - xi_1)), phi_m = 2 pi xi_2.
+  Vec3<T> SampleWm(Point2 u) const {
+    using std::sqrt;
+    const T tan2 = alpha_ * alpha_ * T(u.x / (1 - u.x));
+    const T cosTheta = T(1) / sqrt(T(1) + tan2);
+    const T sinTheta = SafeSqrt(T(1) - cosTheta * cosTheta);
+    return SphericalDirection(sinTheta, cosTheta, T(2 * kPi * u.y));
+  }
+  T PdfWm(const Vec3<T>& wm) const { return D(wm) * AbsCosTheta(wm); }
+
+  // Visible normals seen from w (either hemisphere; from below, the surface is seen from -w as
+  // in pbrt-v4): density D_vis(w, m) = G1(w, m) max(0, w'.m) D(m) / |w.n| with w' = w flipped to
+  // the upper hemisphere (eq. 3b of the geometric seed). Heitz 2018, "Sampling the GGX
+  // distribution of visible normals", listing 1.
+  Vec3<T> SampleVisibleWm(const Vec3<T>& w, Point2 u) const {
+    using std::cos;
+    using std::sin;
+    using std::sqrt;
+    Vec3<T> wv = CosTheta(w) < T(0) ? -w : w;
+    // Transform to the hemisphere configuration (stretch by alpha).
+    const Vec3<T> wh = Normalize(Vec3<T>(alpha_ * wv.x, alpha_ * wv.y, wv.z));
+    const T lensq = wh.x * wh.x + wh.y * wh.y;
+    const Vec3<T> t1 =
+        lensq > T(0) ? Vec3<T>(-wh.y, wh.x, T(0)) / sqrt(lensq) : Vec3<T>(T(1), T(0), T(0));
+    const Vec3<T> t2 = Cross(wh, t1);
+    // Uniform point on the projected disk, warped to the visible half.
+    const T r = T(std::sqrt(u.x));
+    const T phi = T(2 * kPi * u.y);
+    const T p1 = r * cos(phi);
+    T p2 = r * sin(phi);
+    const T s = T(0.5) * (T(1) + wh.z);
+    p2 = (T(1) - s) * SafeSqrt(T(1) - p1 * p1) + s * p2;
+    const Vec3<T> nh = t1 * p1 + t2 * p2 + wh * SafeSqrt(T(1) - p1 * p1 - p2 * p2);
+    // Back to the ellipsoid configuration.
+    return Normalize(Vec3<T>(alpha_ * nh.x, alpha_ * nh.y, nh.z > T(0) ? nh.z : T(0)));
+  }
+  T PdfVisibleWm(const Vec3<T>& w, const Vec3<T>& wm) const {
+    const T cos_w = AbsCosTheta(w);
+    if (cos_w <= T(0)) return T(0);
+    const T wm_dot = CosTheta(w) < T(0) ? -Dot(w, wm) : Dot(w, wm);
+    if (wm_dot <= T(0)) return T(0);
+    return G1(w, wm) * wm_dot * D(wm) / cos_w;
+  }
+
+  GgxDistribution Widened(const Vec3<T>& wi) const {
+    using std::sqrt;
+    // Walter gives the widening for Beckmann only; the same factor is used for GGX (measured in
+    // tests: it lowers the maximum weight there too).
+    return GgxDistribution((T(1.2) - T(0.2) * sqrt(AbsCosTheta(wi))) * alpha_);
+  }
+
+ private:
+  T alpha_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Phong (Blinn), eq. 30 (D), G1 through eq. 27 with a = sqrt(0.5 alpha_p + 1) / tan theta_v,
+// 31-32 (sampling). Exponent alpha_p >= 0.
+template <typename T>
+class PhongDistribution {
+ public:
+  using Scalar = T;
+
+  explicit PhongDistribution(T exponent) : exponent_(exponent) {}
+
+  const T& exponent() const { return exponent_; }
+
+  // eq. 30: D(m) = chi+(m.n) (alpha_p + 2) / (2 pi) cos^alpha_p theta_m
+  T D(const Vec3<T>& wm) const {
+    using std::pow;
+    if (CosTheta(wm) <= T(0)) return T(0);
+    return (exponent_ + T(2)) / T(2 * kPi) * pow(CosTheta(wm), exponent_);
+  }
+
+  T G1(const Vec3<T>& w) const {
+    using std::sqrt;
+    const T sin2 = Sin2Theta(w);
+    if (sin2 <= T(0)) return T(1);
+    const T a = sqrt(T(0.5) * exponent_ + T(1)) * AbsCosTheta(w) / sqrt(sin2);
+    return SmithG1RationalBeckmann(a);
+  }
+  T G1(const Vec3<T>& w, const Vec3<T>& wm) const {
+    return Dot(w, wm) * CosTheta(w) > T(0) ? G1(w) : T(0);
+  }
+  T Lambda(const Vec3<T>& w) const { return T(1) / G1(w) - T(1); }
+
+  // eq. 31-32: theta_m = arccos(xi_1^(1 / (alpha_p + 2))), phi_m = 2 pi xi_2.
+  Vec3<T> SampleWm(Point2 u) const {
+    using std::pow;
+    const T cosTheta = pow(T(u.x), T(1) / (exponent_ + T(2)));
+    const T sinTheta = SafeSqrt(T(1) - cosTheta * cosTheta);
+    return SphericalDirection(sinTheta, cosTheta, T(2 * kPi * u.y));
+  }
+  T PdfWm(const Vec3<T>& wm) const { return D(wm) * AbsCosTheta(wm); }
+
+ private:
+  T exponent_;
+};
+
+// The mapping under which Phong and Beckmann are close (section 5.2): alpha_p = 2 alpha_b^-2 - 2.
+template <typename T>
+T BeckmannToPhongExponent(const T& alpha_b) {
+  return T(2) / (alpha_b * alpha_b) - T(2);
+}
+
+// ---------------------------------------------------------------------------------------------
+template <typename Dist>
+concept MicrofacetDistribution = requires(const Dist& d, const Vec3<typename Dist::Scalar>& w,
+                                          Point2 u) {
+  {d.D(w)};
+  {d.G1(w)};
+  {d.G1(w, w)};
+  {d.Lambda(w)};
+  {d.SampleWm(u)};
+  {d.PdfWm(w)};
+};
+
+}  // namespace gonio::optics

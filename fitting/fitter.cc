@@ -1,0 +1,463 @@
+#include "fitting/fitter.h"
+
+#include <ceres/ceres.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <memory>
+#include <sstream>
+
+namespace gonio::fitting {
+namespace {
+
+using optics::Vec3;
+constexpr double kDeg = optics::kPi / 180;
+constexpr double kEtaMin = 1.0, kEtaSpan = 2.0;  // eta in (1, 3)
+
+// Solver-side parameterisation (see the header): x = log(width), y = log(k), z = logit of eta.
+template <typename T>
+T EtaFromRaw(const T& z) {
+  using std::exp;
+  return T(kEtaMin) + T(kEtaSpan) / (T(1) + exp(-z));
+}
+double RawFromEta(double eta) {
+  const double u = (eta - kEtaMin) / kEtaSpan;
+  return std::log(u / (1 - u));
+}
+
+struct Residual {
+  ModelSpec model;
+  Vec3<double> l, v;
+  double value, inv_sigma;
+
+  template <typename T>
+  bool operator()(const T* log_width, const T* log_k, const T* eta_raw, T* r) const {
+    using std::exp;
+    const T m = MeasurementModel(model, Vec3<T>(l), Vec3<T>(v), exp(log_width[0]), exp(log_k[0]),
+                                 EtaFromRaw(eta_raw[0]));
+    r[0] = (m - T(value)) * T(inv_sigma);
+    return true;
+  }
+};
+
+// Model values at k = 1 and the weighted least-squares k for them (linear in k).
+struct ScanPoint {
+  double alpha_equiv = 0;
+  double width = 0;
+  double k = 0;
+  double cost = std::numeric_limits<double>::infinity();
+};
+
+ScanPoint EvaluateWidth(std::span<const Sample> samples, const ModelSpec& model, double width,
+                        double eta) {
+  ScanPoint p;
+  p.width = width;
+  p.alpha_equiv = AlphaEquivalent(model.family, width);
+  double sym = 0, smm = 0;
+  std::vector<double> m(samples.size());
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    const Sample& s = samples[k];
+    m[k] = MeasurementModel(model, s.light, s.view, width, 1.0, eta);
+    const double w = 1 / (s.sigma * s.sigma);
+    sym += w * s.value * m[k];
+    smm += w * m[k] * m[k];
+  }
+  if (!(smm > 0) || !(sym > 0)) return p;
+  p.k = sym / smm;
+  p.cost = 0;
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    const double r = (p.k * m[k] - samples[k].value) / samples[k].sigma;
+    p.cost += r * r;
+  }
+  return p;
+}
+
+int PointsInLobe(std::span<const Sample> samples, const FitSummary& fit) {
+  // Per incidence: samples whose prediction is at least half that incidence's largest prediction.
+  int total = 0;
+  for (const auto& g : GroupByIncidence(samples)) {
+    double peak = 0;
+    std::vector<double> p;
+    for (const Sample& s : g.samples) p.push_back(Predict(fit, s)), peak = std::max(peak, p.back());
+    if (peak <= 0) continue;
+    int n = 0;
+    for (double x : p) n += x >= 0.5 * peak;
+    total = std::max(total, n);
+  }
+  return total;
+}
+
+// One local solve. The problem holds pointers to x, so a LocalFit lives on the heap and never
+// moves while its problem is in use (the covariance is computed on the winner's problem).
+struct LocalFit {
+  double x[3];  // log width, log k, eta raw
+  double cost = std::numeric_limits<double>::infinity();
+  bool converged = false;
+  int iterations = 0;
+  std::string message;
+  std::unique_ptr<ceres::Problem> problem;
+};
+
+std::unique_ptr<LocalFit> SolveFrom(std::span<const Sample> samples, const FitOptions& o,
+                                    double width, double k) {
+  auto fit = std::make_unique<LocalFit>();
+  LocalFit& f = *fit;
+  f.x[0] = std::log(width);
+  f.x[1] = std::log(k);
+  f.x[2] = RawFromEta(o.eta);
+  f.problem = std::make_unique<ceres::Problem>();
+  ceres::Problem* problem = f.problem.get();
+  for (const Sample& s : samples) {
+    Residual* r = new Residual{o.model, s.light, s.view, s.value, 1 / s.sigma};
+    ceres::CostFunction* cost =
+        o.derivatives == Derivatives::kAutomatic
+            ? static_cast<ceres::CostFunction*>(
+                  new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1>(r))
+            : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1>(r);
+    ceres::LossFunction* loss = nullptr;
+    if (o.loss == Loss::kHuber) loss = new ceres::HuberLoss(o.loss_scale);
+    if (o.loss == Loss::kCauchy) loss = new ceres::CauchyLoss(o.loss_scale);
+    problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2]);
+  }
+  if (!o.fit_eta) problem->SetParameterBlockConstant(&f.x[2]);
+
+  ceres::Solver::Options so;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = o.max_iterations;
+  so.function_tolerance = 1e-14;
+  so.parameter_tolerance = 1e-12;
+  so.gradient_tolerance = 1e-14;
+  so.logging_type = ceres::SILENT;
+  so.num_threads = 1;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, problem, &summary);
+  f.cost = 2 * summary.final_cost;  // Ceres' cost is half the sum of squares
+  f.iterations = static_cast<int>(summary.iterations.size()) - 1;
+  f.converged = summary.termination_type == ceres::CONVERGENCE && std::isfinite(f.cost);
+  if (!f.converged) f.message = summary.message;
+  return fit;
+}
+
+}  // namespace
+
+const char* ToString(FitStatus s) {
+  switch (s) {
+    case FitStatus::kConverged:
+      return "converged";
+    case FitStatus::kUnconstrained:
+      return "unconstrained";
+    case FitStatus::kFailed:
+      return "failed";
+  }
+  return "?";
+}
+
+Status FitOptions::Validate() const {
+  if (!(eta > 1 && eta < 3)) return InvalidArgument("eta must lie in (1, 3)");
+  if (!(loss_scale > 0)) return InvalidArgument("loss_scale must be > 0");
+  if (initial_width && !(*initial_width > 0 && std::isfinite(*initial_width)))
+    return InvalidArgument("initial_width must be a finite number > 0");
+  if (max_local_fits < 1) return InvalidArgument("max_local_fits must be >= 1");
+  if (scan_points < 4) return InvalidArgument("scan_points must be >= 4");
+  if (max_iterations < 1) return InvalidArgument("max_iterations must be >= 1");
+  return OkStatus();
+}
+
+double Predict(const FitSummary& fit, const Sample& s) {
+  return MeasurementModel(fit.model, s.light, s.view, fit.width.value, fit.scale.value,
+                          fit.eta.value);
+}
+
+std::vector<IncidenceGroup> GroupByIncidence(std::span<const Sample> samples) {
+  std::vector<IncidenceGroup> groups;
+  std::vector<Vec3<double>> keys;
+  for (const Sample& s : samples) {
+    std::size_t g = 0;
+    while (g < keys.size() && optics::LengthSquared(keys[g] - s.light) > 1e-12) ++g;
+    if (g == keys.size()) {
+      keys.push_back(s.light);
+      groups.push_back({ThetaLightDeg(s), {}});
+    }
+    groups[g].samples.push_back(s);
+  }
+  return groups;
+}
+
+std::optional<double> EstimateAlphaFromHalfWidth(std::span<const Sample> samples, double eta) {
+  // The incidence group holding the largest value; its peak view direction; the nearest view
+  // direction where the signal has fallen below half the peak.
+  const auto groups = GroupByIncidence(samples);
+  const IncidenceGroup* best = nullptr;
+  const Sample* peak = nullptr;
+  for (const auto& g : groups)
+    for (const Sample& s : g.samples)
+      if (!peak || s.value > peak->value) peak = &s, best = &g;
+  if (!peak || !(peak->value > 0)) return std::nullopt;
+  double half_angle = std::numeric_limits<double>::infinity();
+  for (const Sample& s : best->samples)
+    if (s.value < 0.5 * peak->value)
+      half_angle = std::min(half_angle, std::acos(std::clamp(Dot(s.view, peak->view), -1.0, 1.0)));
+  if (!std::isfinite(half_angle) || half_angle <= 0) return std::nullopt;
+  // Near normal incidence a facet tilted by theta_h deflects the refracted ray by about
+  // theta_h (1 - 1/eta); Beckmann's D falls to half at tan(theta_h) = alpha sqrt(ln 2).
+  const double theta_h = std::min(half_angle / (1 - 1 / eta), 80 * kDeg);
+  return std::tan(theta_h) / std::sqrt(std::log(2.0));
+}
+
+Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
+  if (Status s = o.Validate(); !s) return s.error();
+  if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
+
+  // 1. Scan the width on a log grid of alpha-equivalent (k at its optimum for each width).
+  std::vector<ScanPoint> scan;
+  for (int k = 0; k < o.scan_points; ++k) {
+    const double a = 0.003 * std::pow(2.0 / 0.003, double(k) / (o.scan_points - 1));
+    if (auto w = WidthFromAlphaEquivalent(o.model.family, a))
+      scan.push_back(EvaluateWidth(samples, o.model, *w, o.eta));
+  }
+  // 2. Starts: the caller's, the half-width estimate, then local minima of the scan, best first.
+  std::vector<ScanPoint> starts;
+  auto add_start = [&](double width) {
+    if (!(width > 0) || !std::isfinite(width)) return;
+    for (const auto& s : starts)
+      if (std::abs(std::log(s.width / width)) < 0.05) return;
+    ScanPoint p = EvaluateWidth(samples, o.model, width, o.eta);
+    if (std::isfinite(p.cost)) starts.push_back(p);
+  };
+  if (o.initial_width) add_start(*o.initial_width);
+  if (auto a = EstimateAlphaFromHalfWidth(samples, o.eta))
+    if (auto w = WidthFromAlphaEquivalent(o.model.family, *a)) add_start(*w);
+  std::vector<ScanPoint> minima;
+  for (std::size_t k = 0; k < scan.size(); ++k) {
+    const bool left = k == 0 || scan[k].cost <= scan[k - 1].cost;
+    const bool right = k + 1 == scan.size() || scan[k].cost <= scan[k + 1].cost;
+    if (left && right && std::isfinite(scan[k].cost)) minima.push_back(scan[k]);
+  }
+  std::sort(minima.begin(), minima.end(),
+            [](const ScanPoint& a, const ScanPoint& b) { return a.cost < b.cost; });
+  for (const auto& m : minima) add_start(m.width);
+  if (starts.empty())
+    return Error{ErrorCode::kNumerical,
+                 "the model is zero at every sample for every width tried: are the light and "
+                 "view directions a transmission geometry the model can reach?"};
+
+  // Local fits: the caller's start and the half-width estimate always run, then the best scan
+  // minima, up to max_local_fits (plus those first two).
+  const std::size_t n_fits = std::min(
+      starts.size(), static_cast<std::size_t>(o.max_local_fits) + (o.initial_width ? 1 : 0) + 1);
+  std::unique_ptr<LocalFit> winner;
+  std::string first_failure;
+  FitSummary out;
+  out.model = o.model;
+  for (std::size_t k = 0; k < n_fits; ++k) {
+    std::unique_ptr<LocalFit> f = SolveFrom(samples, o, starts[k].width, starts[k].k);
+    ++out.local_fits;
+    if (f->converged && (!winner || f->cost < winner->cost))
+      winner = std::move(f);
+    else if (!f->converged && first_failure.empty())
+      first_failure = f->message;
+  }
+  out.n_points = static_cast<int>(samples.size());
+  out.n_params = o.NumParams();
+  if (!winner) {
+    out.status = FitStatus::kFailed;
+    out.message = "no start converged: " + first_failure;
+    return out;
+  }
+  const LocalFit& best = *winner;
+
+  out.width.value = std::exp(best.x[0]);
+  out.scale.value = std::exp(best.x[1]);
+  out.eta.value = EtaFromRaw(best.x[2]);
+  out.alpha_equivalent = AlphaEquivalent(o.model.family, out.width.value);
+  out.iterations = best.iterations;
+  out.residuals.reserve(samples.size());
+  out.chi2 = 0;
+  for (const Sample& s : samples) {
+    const double r = (Predict(out, s) - s.value) / s.sigma;
+    out.residuals.push_back(r);
+    out.chi2 += r * r;
+  }
+  const int dof = out.n_points - out.n_params;
+  out.reduced_chi2 = out.chi2 / dof;
+  out.aic = out.chi2 + 2.0 * out.n_params;
+  out.bic = out.chi2 + out.n_params * std::log(double(out.n_points));
+  out.points_in_lobe = PointsInLobe(samples, out);
+
+  // Covariance of (log width, log k, eta raw), then the delta method.
+  ceres::Covariance::Options co;
+  co.algorithm_type = ceres::DENSE_SVD;
+  // null_space_rank 0: a rank-deficient Jacobian makes Compute() fail (reported as unconstrained)
+  // instead of silently dropping the direction and reporting a small sigma.
+  co.null_space_rank = 0;
+  co.min_reciprocal_condition_number = 1e-14;
+  ceres::Covariance cov(co);
+  std::vector<const double*> blocks = {&best.x[0], &best.x[1]};
+  if (o.fit_eta) blocks.push_back(&best.x[2]);
+  std::vector<double> c(blocks.size() * blocks.size(), 0.0);
+  bool cov_ok =
+      cov.Compute(blocks, best.problem.get()) && cov.GetCovarianceMatrix(blocks, c.data());
+  const std::size_t n = blocks.size();
+  // Inflate when the residuals scatter more than the sigmas say. With a robust loss the outliers
+  // it down-weights would dominate chi2, so the scatter is measured robustly (1.4826 MAD).
+  double scatter2 = out.reduced_chi2;
+  if (o.loss != Loss::kNone) {
+    std::vector<double> a;
+    for (double r : out.residuals) a.push_back(std::abs(r));
+    std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+    scatter2 = std::pow(1.4826 * a[a.size() / 2], 2);
+  }
+  const double inflate = o.inflate_by_reduced_chi2 ? std::max(1.0, scatter2) : 1.0;
+  double var_lw = c[0] * inflate, var_lk = c[n + 1] * inflate;
+  cov_ok = cov_ok && var_lw > 0 && var_lk > 0;
+  if (cov_ok) {
+    out.width.sigma = out.width.value * std::sqrt(var_lw);
+    out.scale.sigma = out.scale.value * std::sqrt(var_lk);
+    if (o.fit_eta) {
+      const double var = c[2 * n + 2] * inflate;
+      const double u = (out.eta.value - kEtaMin) / kEtaSpan;
+      out.eta.sigma = kEtaSpan * u * (1 - u) * std::sqrt(std::max(var, 0.0));
+    }
+  }
+
+  std::ostringstream why;
+  if (!cov_ok)
+    why << "the covariance is singular: the data do not constrain every parameter";
+  else if (out.points_in_lobe < 3)
+    why << "only " << out.points_in_lobe
+        << " sample(s) lie inside the fitted lobe's half maximum: sample the peak more finely "
+           "to determine the width";
+  else if (out.width.sigma > 0.5 * out.width.value)
+    why << "the width's relative uncertainty is " << 100 * out.width.sigma / out.width.value
+        << " %: the data barely constrain it";
+  out.message = why.str();
+  out.status = out.message.empty() ? FitStatus::kConverged : FitStatus::kUnconstrained;
+  return out;
+}
+
+// ---- Comparing models ----------------------------------------------------------------------
+
+ModelChoice SelectModel(std::span<const FitSummary> fits, double decisive_delta_bic) {
+  ModelChoice c;
+  double min_bic = std::numeric_limits<double>::infinity();
+  for (const auto& f : fits)
+    if (f.status != FitStatus::kFailed) min_bic = std::min(min_bic, f.bic);
+  for (const auto& f : fits)
+    c.delta_bic.push_back(f.status != FitStatus::kFailed ? f.bic - min_bic
+                                                         : std::numeric_limits<double>::infinity());
+  if (!std::isfinite(min_bic)) {
+    c.reason = "no fit converged";
+    return c;
+  }
+  // Contenders: within the decisive margin of the best.
+  std::vector<std::size_t> contenders;
+  for (std::size_t k = 0; k < fits.size(); ++k)
+    if (c.delta_bic[k] < decisive_delta_bic) contenders.push_back(k);
+  for (std::size_t k : contenders)
+    if (fits[k].status == FitStatus::kUnconstrained) {
+      c.reason = Describe(fits[k].model) + " is a contender but the data do not constrain it (" +
+                 fits[k].message + ")";
+      return c;
+    }
+  int fewest = std::numeric_limits<int>::max();
+  for (std::size_t k : contenders) fewest = std::min(fewest, fits[k].n_params);
+  std::vector<std::size_t> smallest;
+  for (std::size_t k : contenders)
+    if (fits[k].n_params == fewest) smallest.push_back(k);
+  std::ostringstream os;
+  if (smallest.size() == 1) {
+    c.chosen = smallest[0];
+    os << Describe(fits[smallest[0]].model) << ": every other model is " << decisive_delta_bic
+       << " or more worse in BIC, or has more parameters than the data support";
+  } else {
+    os << "the data cannot tell apart";
+    for (std::size_t k : smallest)
+      os << " " << Describe(fits[k].model) << " (dBIC " << c.delta_bic[k] << ")";
+    os << "; all are within " << decisive_delta_bic << " of the best";
+  }
+  c.reason = os.str();
+  return c;
+}
+
+// ---- The paper's protocol -----------------------------------------------------------------------
+
+std::vector<PredictionError> PredictIncidences(const FitSummary& fit,
+                                               std::span<const Sample> samples) {
+  std::vector<PredictionError> out;
+  for (const auto& g : GroupByIncidence(samples)) {
+    PredictionError e;
+    e.theta_l_deg = g.theta_l_deg;
+    e.n = static_cast<int>(g.samples.size());
+    double peak_meas = 0, peak_pred = 0, sum_rel2 = 0;
+    int n_rel = 0;
+    for (const Sample& s : g.samples) peak_meas = std::max(peak_meas, s.value);
+    for (const Sample& s : g.samples) {
+      const double p = Predict(fit, s);
+      peak_pred = std::max(peak_pred, p);
+      e.reduced_chi2 += (p - s.value) * (p - s.value) / (s.sigma * s.sigma);
+      if (s.value > 0.01 * peak_meas) {
+        sum_rel2 += (p - s.value) * (p - s.value) / (s.value * s.value);
+        ++n_rel;
+      }
+    }
+    e.reduced_chi2 /= std::max(1, e.n);
+    e.rms_relative = n_rel ? std::sqrt(sum_rel2 / n_rel) : 0;
+    e.peak_ratio = peak_meas > 0 ? peak_pred / peak_meas : 0;
+    out.push_back(e);
+  }
+  return out;
+}
+
+// ---- Empirical D --------------------------------------------------------------------------------
+
+std::vector<EmpiricalDPoint> EmpiricalD(std::span<const Sample> samples, double scale, double eta,
+                                        double min_relative, double min_snr) {
+  std::vector<EmpiricalDPoint> out;
+  double max_value = 0;
+  for (const Sample& s : samples) max_value = std::max(max_value, s.value);
+  for (const Sample& s : samples) {
+    const Vec3<double>& l = s.light;
+    const Vec3<double>& v = s.view;
+    if (optics::AbsCosTheta(l) <= 0.5 || optics::AbsCosTheta(v) <= 0.5) continue;
+    if (s.value < min_relative * max_value || s.value < min_snr * s.sigma) continue;
+    const double eta_i = 1, eta_o = eta;  // light in air, view in glass
+    const auto h = optics::HalfVectorTransmission(l, eta_i, v, eta_o);
+    if (!h || Dot(l, *h) <= 0 || Dot(v, *h) >= 0) continue;
+    const double ldoth = Dot(l, *h), vdoth = Dot(v, *h);
+    const double denom = eta_i * ldoth + eta_o * vdoth;
+    const double F = optics::FresnelDielectric(ldoth, eta_o / eta_i);
+    // eq. 21 with G = 1, solved for D; S = k f_t |cos theta_l|.
+    const double to_d = optics::AbsCosTheta(l) * optics::AbsCosTheta(v) * denom * denom /
+                        (std::abs(ldoth) * std::abs(vdoth) * eta_o * eta_o * (1 - F)) /
+                        (scale * optics::AbsCosTheta(l));
+    EmpiricalDPoint p;
+    p.theta_h_deg = std::acos(std::clamp(h->z, -1.0, 1.0)) / kDeg;
+    p.d = s.value * to_d;
+    p.d_sigma = s.sigma * to_d;
+    out.push_back(p);
+  }
+  std::sort(out.begin(), out.end(), [](const EmpiricalDPoint& a, const EmpiricalDPoint& b) {
+    return a.theta_h_deg < b.theta_h_deg;
+  });
+  return out;
+}
+
+double FittedD(const FitSummary& fit, double theta_h_deg) {
+  using namespace optics;
+  const Vec3<double> m = DirectionInPlane(theta_h_deg * kDeg);
+  switch (fit.model.family) {
+    case Family::kBeckmann:
+      return BeckmannDistribution<double>(fit.width.value).D(m);
+    case Family::kGgx:
+      return GgxDistribution<double>(fit.width.value).D(m);
+    case Family::kPhong:
+      return PhongDistribution<double>(fit.width.value).D(m);
+    case Family::kSun2008:
+      return Sun2008OrientationD(m, fit.width.value);
+  }
+  return 0;
+}
+
+}  // namespace gonio::fitting

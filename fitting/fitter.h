@@ -1,0 +1,155 @@
+// Fits microfacet models to measured BTDF*cos samples with Ceres (issue #3; Walter 2007 section 6).
+//
+// Contract
+//   * Input: a span of transmission Samples (sample.h), checked by ValidateSamples. The fitter
+//     minimises sum_i rho(((S_model(l_i, v_i) - value_i) / sigma_i)^2) over the width, the scale k
+//     and (optionally) eta, with rho the identity or a robust loss.
+//   * Parameters stay physical without bounds the solver can hit: the solver sees log(width),
+//     log(k) and, for eta, a logistic map onto (1, 3).
+//   * Derivatives are exact (automatic differentiation through the templated optics layer).
+//     Derivatives::kNumeric exists only so the benchmarks can chart what exactness buys.
+//   * Starts need no human: a 1-D scan of the width on a log grid (k at its closed-form optimum for
+//     each width), the lobe's half-width at half maximum, and the caller's start if given. Local
+//     fits run from the best few; the lowest cost wins.
+//   * Uncertainties: the covariance of the solution (ceres::Covariance), mapped to the physical
+//     parameters by the delta method and, by default, inflated by the reduced chi-square when it
+//     exceeds 1 (the data scatter more than their sigmas say); with a robust loss, by the squared
+//     robust scatter (1.4826 x median |residual|) instead, since the outliers dominate chi-square.
+//   * A fit the data cannot support is reported, not hidden: FitStatus::kUnconstrained when fewer
+//     than 3 samples lie inside the fitted lobe's half maximum, the width's relative uncertainty
+//     exceeds 50 %, or the covariance is singular.
+#pragma once
+
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "common/result.h"
+#include "fitting/model.h"
+#include "fitting/sample.h"
+
+namespace gonio::fitting {
+
+enum class Loss { kNone, kHuber, kCauchy };
+enum class Derivatives { kAutomatic, kNumeric };
+
+struct FitOptions {
+  ModelSpec model;
+  double eta = 1.51;  // fixed value, or the start when fit_eta (soda-lime, REFERENCE.md)
+  bool fit_eta = false;
+  Loss loss = Loss::kNone;
+  double loss_scale = 3.0;  // robust loss scale, in units of sigma
+  // Start for the width in the family's own unit (alpha, exponent or s); nullopt: none.
+  std::optional<double> initial_width;
+  int max_local_fits = 3;  // local fits from the best distinct starts
+  int scan_points = 40;    // log grid of alpha-equivalent in [0.003, 2]
+  int max_iterations = 200;
+  Derivatives derivatives = Derivatives::kAutomatic;
+  bool inflate_by_reduced_chi2 = true;
+
+  // Valid options, or an InvalidArgument naming the bad field.
+  Status Validate() const;
+  int NumParams() const { return fit_eta ? 3 : 2; }
+};
+
+enum class FitStatus {
+  kConverged,      // the solver converged and the data constrain the width
+  kUnconstrained,  // converged, but the data do not determine the width (see message)
+  kFailed,         // no start converged
+};
+const char* ToString(FitStatus s);
+
+struct Parameter {
+  double value = 0;
+  double sigma = 0;  // 1-sigma; 0 for a fixed parameter
+};
+
+struct FitSummary {
+  ModelSpec model;
+  FitStatus status = FitStatus::kFailed;
+  std::string message;  // why, when not kConverged; empty otherwise
+
+  Parameter width;  // in the family's unit (WidthName)
+  Parameter scale;  // k
+  Parameter eta;    // sigma 0 unless fitted
+  double alpha_equivalent = 0;
+
+  int n_points = 0;
+  int n_params = 0;
+  double chi2 = 0;  // sum of squared normalised residuals (without the robust loss)
+  double reduced_chi2 = 0;
+  double aic = 0;                 // chi2 + 2 p
+  double bic = 0;                 // chi2 + p ln n
+  std::vector<double> residuals;  // (model - value) / sigma, in the order of the samples
+
+  int iterations = 0;  // of the winning local fit
+  int local_fits = 0;  // how many local fits ran
+  int points_in_lobe = 0;
+
+  bool ok() const { return status == FitStatus::kConverged; }
+};
+
+// Fits one model. Errors: InvalidArgument for bad options or samples (the message names the
+// sample); the solver's own failures are a FitSummary with status kFailed, not an error.
+Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& options);
+
+// The fitted model's prediction of each sample's value.
+double Predict(const FitSummary& fit, const Sample& s);
+
+// Half-width at half maximum of the lobe, turned into an alpha-equivalent start (or nullopt when
+// the data have no clear peak). Exposed for tests.
+std::optional<double> EstimateAlphaFromHalfWidth(std::span<const Sample> samples, double eta);
+
+// ---- Comparing models ----------------------------------------------------------------------
+
+struct ModelChoice {
+  std::optional<std::size_t> chosen;  // index into the fits; nullopt: the data cannot decide
+  std::string reason;
+  std::vector<double> delta_bic;  // BIC - min BIC, per fit (inf for failed fits)
+};
+
+// Picks the smallest model the data support: among converged, constrained fits within
+// `decisive_delta_bic` of the lowest BIC (10 = "very strong" evidence, Kass & Raftery 1995), the
+// one with the fewest parameters; if several share that count, none (the data cannot tell them
+// apart).
+ModelChoice SelectModel(std::span<const FitSummary> fits, double decisive_delta_bic = 10.0);
+
+// ---- The paper's protocol -----------------------------------------------------------------------
+
+// Samples grouped by light direction (one group per incidence of a sweep).
+struct IncidenceGroup {
+  double theta_l_deg = 0;
+  std::vector<Sample> samples;
+};
+std::vector<IncidenceGroup> GroupByIncidence(std::span<const Sample> samples);
+
+// How well a fit predicts each incidence (Walter section 6: fit at normal incidence, then
+// predict 30, 60, 80 degrees).
+struct PredictionError {
+  double theta_l_deg = 0;
+  int n = 0;
+  double reduced_chi2 = 0;  // sum ((pred - value)/sigma)^2 / n
+  double rms_relative = 0;  // over samples above 1 % of the group's peak
+  double peak_ratio = 0;    // predicted peak / measured peak
+};
+std::vector<PredictionError> PredictIncidences(const FitSummary& fit,
+                                               std::span<const Sample> samples);
+
+// ---- Empirical D (Walter section 6, bottom plots of Figures 10, 11, 13, 14) ------------------
+
+struct EmpiricalDPoint {
+  double theta_h_deg = 0;  // angle of the half vector h_t from the normal
+  double d = 0;            // eq. 21 solved for D with G = 1 and the fitted scale
+  double d_sigma = 0;
+};
+
+// Uses samples with |l.n| > 0.5 and |v.n| > 0.5 whose value exceeds both
+// min_relative * (largest value) and min_snr * sigma (stray light and noise are excluded).
+std::vector<EmpiricalDPoint> EmpiricalD(std::span<const Sample> samples, double scale, double eta,
+                                        double min_relative = 1e-3, double min_snr = 3.0);
+
+// The fitted D(theta_h) of a fit, for plotting beside the empirical points.
+double FittedD(const FitSummary& fit, double theta_h_deg);
+
+}  // namespace gonio::fitting

@@ -1,0 +1,87 @@
+#include "fitting/sample.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace gonio::fitting {
+namespace {
+constexpr double kDeg = optics::kPi / 180;
+}
+
+Sample SampleFromBenchAngles(double theta_l_deg, double phi_l_deg, double theta_v_deg,
+                             double phi_v_deg, double value, double sigma) {
+  const double tl = theta_l_deg * kDeg, pl = phi_l_deg * kDeg;
+  const double tv = theta_v_deg * kDeg, pv = phi_v_deg * kDeg;
+  Sample s;
+  s.light = {std::sin(tl) * std::cos(pl), std::sin(tl) * std::sin(pl), std::cos(tl)};
+  s.view = {std::sin(tv) * std::cos(pv), std::sin(tv) * std::sin(pv), -std::cos(tv)};
+  s.value = value;
+  s.sigma = sigma;
+  return s;
+}
+
+double ThetaLightDeg(const Sample& s) {
+  const double t = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / kDeg;
+  return s.light.x < 0 ? -t : t;
+}
+
+double ThetaViewDeg(const Sample& s) {
+  const double t = std::acos(std::clamp(-s.view.z, -1.0, 1.0)) / kDeg;
+  return s.view.x < 0 ? -t : t;
+}
+
+std::string Where(const Sample& s, std::size_t index, const std::string& source) {
+  std::ostringstream os;
+  if (s.line > 0 && !source.empty())
+    os << source << ":" << s.line;
+  else if (s.line > 0)
+    os << "line " << s.line;
+  else
+    os << "sample " << index;
+  return os.str();
+}
+
+Status ValidateSamples(std::span<const Sample> samples, int n_params, const std::string& source) {
+  if (samples.size() <= static_cast<std::size_t>(n_params)) {
+    std::ostringstream os;
+    os << samples.size() << " samples for " << n_params
+       << " free parameters: a fit needs more samples than parameters";
+    return InvalidArgument((source.empty() ? "" : source + ": ") + os.str());
+  }
+  bool any_signal = false;
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    const Sample& s = samples[k];
+    auto bad = [&](const std::string& what) {
+      return InvalidArgument(Where(s, k, source) + ": " + what);
+    };
+    if (!std::isfinite(s.value)) return bad("value is not a finite number");
+    if (!std::isfinite(s.sigma)) return bad("sigma is not a finite number");
+    if (!(s.sigma > 0)) return bad("sigma must be > 0 (it weights the sample)");
+    // Dark-subtracted values scatter below zero where the signal is below the noise; that is a
+    // measurement of ~0 and dropping or clipping it would bias the fit. More than 5 sigma below
+    // zero is not noise: the dark frame does not match the exposure.
+    if (s.value < -5 * s.sigma) {
+      std::ostringstream os;
+      os << "value " << s.value << " is " << -s.value / s.sigma
+         << " sigma below zero: a negative BTDF beyond the noise means the dark subtraction is "
+            "wrong (dark frame at another exposure or temperature?); fix it upstream";
+      return bad(os.str());
+    }
+    for (const auto* w : {&s.light, &s.view}) {
+      if (!std::isfinite(w->x) || !std::isfinite(w->y) || !std::isfinite(w->z))
+        return bad("direction is not finite");
+      if (std::abs(optics::LengthSquared(*w) - 1) > 1e-6)
+        return bad("direction is not unit length");
+    }
+    if (!(s.light.z > 0)) return bad("light direction must be on the air side (z > 0)");
+    if (!(s.view.z < 0)) return bad("view direction must be on the glass side (z < 0)");
+    any_signal = any_signal || s.value > s.sigma;
+  }
+  if (!any_signal)
+    return InvalidArgument((source.empty() ? "" : source + ": ") +
+                           "every value is zero within its sigma: there is no signal to fit");
+  return OkStatus();
+}
+
+}  // namespace gonio::fitting

@@ -1,0 +1,44 @@
+// One measured sample of the bench, and the checks every sample set passes before a fit.
+#pragma once
+
+#include <span>
+#include <string>
+
+#include "common/result.h"
+#include "fitting/optics/vecmath.h"
+
+namespace gonio::fitting {
+
+// A transmission sample: S(l, v) = k f_t(l, v) |cos theta_l| (REFERENCE.md section 1).
+struct Sample {
+  optics::Vec3<double> light;  // unit; z > 0 (air side), pointing from the sample to the source
+  optics::Vec3<double> view;   // unit; z < 0 (glass side), pointing from the sample to the camera
+  double value = 0;            // S in any consistent unit (e.g. dark-subtracted counts per second)
+  double sigma = 0;            // 1-sigma uncertainty of value, same unit, > 0
+  int line = 0;                // where it came from (file line), 0 when not from a file
+};
+
+// The bench's angles, in degrees: the light at theta_l from +n (air side) at azimuth phi_l; the
+// view at theta_v from -n (glass side) at azimuth phi_v. In one plane (phi = 0) a negative angle
+// means the other side of the normal. The straight-through direction of light at theta_l is
+// theta_v = -theta_t (same azimuth convention), with theta_t the refraction angle.
+Sample SampleFromBenchAngles(double theta_l_deg, double phi_l_deg, double theta_v_deg,
+                             double phi_v_deg, double value, double sigma);
+// The bench angles of a sample's directions (degrees), the inverse of the above with phi = 0 or
+// 180 folded into a signed theta.
+double ThetaLightDeg(const Sample& s);
+double ThetaViewDeg(const Sample& s);
+
+// Checks what a fit needs: finite values, sigma > 0, values not more than 5 sigma below zero
+// (dark-subtracted noise may be slightly negative; more is a dark-subtraction error), unit
+// directions on the right sides, at least n_params + 1 samples, and some signal (some value above
+// its sigma). Errors name the first
+// offending sample and what is wrong with it: "<source>:12: ..." when the sample came from line
+// 12 of a file called source, "line 12: ..." without a source, "sample 11: ..." (0-based index)
+// when it has no line.
+Status ValidateSamples(std::span<const Sample> samples, int n_params,
+                       const std::string& source = "");
+
+std::string Where(const Sample& s, std::size_t index, const std::string& source = "");
+
+}  // namespace gonio::fitting

@@ -1,0 +1,127 @@
+#include "fitting/samples_csv.h"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <fstream>
+#include <iomanip>
+#include <map>
+#include <sstream>
+
+namespace gonio::fitting {
+namespace {
+
+std::string_view Trim(std::string_view s) {
+  while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\t' || s.back() == '\r'))
+    s.remove_suffix(1);
+  return s;
+}
+
+std::vector<std::string_view> SplitCommas(std::string_view line) {
+  std::vector<std::string_view> out;
+  std::size_t start = 0;
+  for (std::size_t k = 0; k <= line.size(); ++k)
+    if (k == line.size() || line[k] == ',') {
+      out.push_back(Trim(line.substr(start, k - start)));
+      start = k + 1;
+    }
+  return out;
+}
+
+}  // namespace
+
+Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::string& name) {
+  const char* kRequired[] = {"theta_l_deg", "theta_v_deg", "value", "sigma"};
+  const char* kOptional[] = {"phi_l_deg", "phi_v_deg"};
+  std::map<std::string, std::size_t> column;
+  std::vector<Sample> samples;
+  std::size_t n_columns = 0;
+  bool have_header = false;
+  int line_no = 0;
+  std::size_t pos = 0;
+  while (pos <= text.size()) {
+    const std::size_t end = std::min(text.find('\n', pos), text.size());
+    const std::string_view line = Trim(text.substr(pos, end - pos));
+    pos = end + 1;
+    ++line_no;
+    if (line.empty() || line.front() == '#') {
+      if (end == text.size()) break;
+      continue;
+    }
+    auto where = [&] { return name + ":" + std::to_string(line_no) + ": "; };
+    const auto fields = SplitCommas(line);
+    if (!have_header) {
+      for (std::size_t k = 0; k < fields.size(); ++k) column[std::string(fields[k])] = k;
+      for (const char* c : kRequired)
+        if (!column.count(c))
+          return InvalidArgument(where() + "header has no column '" + c +
+                                 "' (required: theta_l_deg, theta_v_deg, value, sigma)");
+      n_columns = fields.size();
+      have_header = true;
+      continue;
+    }
+    if (fields.size() != n_columns) {
+      std::ostringstream os;
+      os << where() << "has " << fields.size() << " fields, the header has " << n_columns;
+      return InvalidArgument(os.str());
+    }
+    auto number = [&](const char* col, double fallback, double* out) -> Status {
+      auto it = column.find(col);
+      if (it == column.end()) {
+        *out = fallback;
+        return OkStatus();
+      }
+      const std::string_view f = fields[it->second];
+      const auto r = std::from_chars(f.data(), f.data() + f.size(), *out);
+      if (f.empty() || r.ec != std::errc() || r.ptr != f.data() + f.size())
+        return InvalidArgument(where() + "column '" + col + "': '" + std::string(f) +
+                               "' is not a number");
+      if (!std::isfinite(*out))
+        return InvalidArgument(where() + "column '" + col + "' is " + std::string(f) +
+                               ": values must be finite");
+      return OkStatus();
+    };
+    double tl, tv, value, sigma, pl, pv;
+    for (auto [col, out] : {std::pair{kRequired[0], &tl}, std::pair{kRequired[1], &tv},
+                            std::pair{kRequired[2], &value}, std::pair{kRequired[3], &sigma}})
+      if (Status s = number(col, 0, out); !s) return s.error();
+    if (Status s = number(kOptional[0], 0, &pl); !s) return s.error();
+    if (Status s = number(kOptional[1], 0, &pv); !s) return s.error();
+    if (!(std::abs(tl) < 90)) return InvalidArgument(where() + "theta_l_deg must lie in (-90, 90)");
+    if (!(std::abs(tv) < 90)) return InvalidArgument(where() + "theta_v_deg must lie in (-90, 90)");
+    Sample s = SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);
+    s.line = line_no;
+    samples.push_back(s);
+    if (end == text.size()) break;
+  }
+  if (!have_header) return InvalidArgument(name + ": empty file (no header row)");
+  if (samples.empty()) return InvalidArgument(name + ": no samples after the header");
+  return samples;
+}
+
+Result<std::vector<Sample>> ReadSamplesCsv(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Error{ErrorCode::kIo, path + ": cannot open for reading"};
+  std::ostringstream buf;
+  buf << in.rdbuf();
+  return ParseSamplesCsv(buf.str(), path);
+}
+
+Status WriteSamplesCsv(const std::string& path, std::span<const Sample> samples) {
+  std::ofstream out(path);
+  if (!out) return Error{ErrorCode::kIo, path + ": cannot open for writing"};
+  out << "theta_l_deg,phi_l_deg,theta_v_deg,phi_v_deg,value,sigma\n" << std::setprecision(17);
+  constexpr double kDeg = optics::kPi / 180;
+  for (const Sample& s : samples) {
+    const double tl = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / kDeg;
+    const double pl = std::atan2(s.light.y, s.light.x) / kDeg;
+    const double tv = std::acos(std::clamp(-s.view.z, -1.0, 1.0)) / kDeg;
+    const double pv = std::atan2(s.view.y, s.view.x) / kDeg;
+    out << tl << ',' << pl << ',' << tv << ',' << pv << ',' << s.value << ',' << s.sigma << '\n';
+  }
+  if (!out) return Error{ErrorCode::kIo, path + ": write failed"};
+  return OkStatus();
+}
+
+}  // namespace gonio::fitting

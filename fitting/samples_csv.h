@@ -1,0 +1,26 @@
+// Samples as CSV: the thin file layer above the fitter (the database layer arrives with #6).
+//
+// Format: a header row naming the columns, in any order, then one sample per row.
+//   theta_l_deg, theta_v_deg, value, sigma   required (bench angles, sample.h)
+//   phi_l_deg, phi_v_deg                     optional, default 0
+// Other columns are ignored. Blank lines and lines starting with '#' are skipped.
+// Every error names file:line and the column; nothing is guessed.
+#pragma once
+
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "common/result.h"
+#include "fitting/sample.h"
+
+namespace gonio::fitting {
+
+Result<std::vector<Sample>> ReadSamplesCsv(const std::string& path);
+// `name` is what messages call the text (a path, or "<stdin>").
+Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::string& name);
+// Writes the required and optional columns; used for synthetic data sets (tests, benchmarks).
+Status WriteSamplesCsv(const std::string& path, std::span<const Sample> samples);
+
+}  // namespace gonio::fitting

@@ -1,0 +1,237 @@
+// gonio-fit: fits microfacet models to a CSV of BTDF*cos samples and prints a table like Figure 12
+// of Walter 2007. With several incidences and a normal-incidence sweep among them it follows the
+// paper's protocol: fit at normal incidence, predict the other incidences, and fit all jointly.
+//
+//   gonio-fit samples.csv --model beckmann,ggx --out fit/
+//
+// Exit status: 0 when at least one model was fitted, 1 when every fit failed, 2 for bad input.
+#include <CLI/CLI.hpp>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "fitting/fitter.h"
+#include "fitting/samples_csv.h"
+
+namespace {
+
+using namespace gonio::fitting;
+
+std::vector<std::string> Split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string item; std::getline(ss, item, ',');)
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+std::string PlusMinus(const Parameter& p, int precision) {
+  std::ostringstream os;
+  os << std::fixed << std::setprecision(precision) << p.value;
+  if (p.sigma > 0) os << " +- " << p.sigma;
+  return os.str();
+}
+
+void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
+               const ModelChoice& choice) {
+  std::cout << "\n" << title << "\n";
+  std::cout << std::left << std::setw(24) << "model" << std::setw(22) << "scale k" << std::setw(30)
+            << "width" << std::setw(10) << "alpha_eq" << std::setw(18) << "eta" << std::setw(10)
+            << "chi2/dof" << std::setw(10) << "dBIC"
+            << "status\n";
+  for (std::size_t k = 0; k < fits.size(); ++k) {
+    const FitSummary& f = fits[k];
+    std::ostringstream width;
+    width << WidthName(f.model.family) << " " << PlusMinus(f.width, 4);
+    std::cout << std::left << std::setw(24) << Describe(f.model) << std::setw(22)
+              << PlusMinus(f.scale, 4) << std::setw(30) << width.str() << std::setw(10)
+              << std::setprecision(4) << f.alpha_equivalent << std::setw(18) << PlusMinus(f.eta, 3)
+              << std::setw(10) << std::setprecision(4) << f.reduced_chi2 << std::setw(10)
+              << std::setprecision(3) << choice.delta_bic[k] << ToString(f.status) << "\n";
+    if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
+  }
+  std::cout << "model choice: " << choice.reason << "\n";
+}
+
+nlohmann::json ToJson(const FitSummary& f) {
+  auto param = [](const Parameter& p) {
+    return nlohmann::json{{"value", p.value}, {"sigma", p.sigma}};
+  };
+  return {{"model", Describe(f.model)},
+          {"family", Name(f.model.family)},
+          {"status", ToString(f.status)},
+          {"message", f.message},
+          {"width_name", WidthName(f.model.family)},
+          {"width", param(f.width)},
+          {"scale", param(f.scale)},
+          {"eta", param(f.eta)},
+          {"alpha_equivalent", f.alpha_equivalent},
+          {"n_points", f.n_points},
+          {"n_params", f.n_params},
+          {"chi2", f.chi2},
+          {"reduced_chi2", f.reduced_chi2},
+          {"aic", f.aic},
+          {"bic", f.bic},
+          {"iterations", f.iterations},
+          {"local_fits", f.local_fits},
+          {"points_in_lobe", f.points_in_lobe}};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos samples"};
+  std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir;
+  FitOptions base;
+  double start = 0;
+  bool rational = false;
+  app.add_option("samples", csv_path,
+                 "CSV with columns theta_l_deg, theta_v_deg, value, sigma [, phi_l_deg, phi_v_deg]")
+      ->required();
+  app.add_option("--model", models_arg, "comma-separated: beckmann, ggx, phong, sun2008")
+      ->capture_default_str();
+  app.add_option("--eta", base.eta, "refractive index of the sample (fixed, or start)")
+      ->capture_default_str();
+  app.add_flag("--fit-eta", base.fit_eta, "fit eta as a third parameter");
+  app.add_option("--loss", loss_arg, "none, huber or cauchy (robust against stray light)")
+      ->capture_default_str();
+  app.add_option("--loss-scale", base.loss_scale, "robust loss scale in sigmas")
+      ->capture_default_str();
+  app.add_option("--start", start,
+                 "starting width (alpha, exponent or s) in addition to the automatic starts");
+  app.add_flag("--rational-g1", rational, "Beckmann with Walter's rational G1 (eq. 27)");
+  app.add_option("--out", out_dir,
+                 "directory for fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json");
+  CLI11_PARSE(app, argc, argv);
+
+  auto fail_input = [](const std::string& msg) {
+    std::cerr << "gonio-fit: error: " << msg << "\n";
+    return 2;
+  };
+  std::vector<ModelSpec> models;
+  for (const std::string& name : Split(models_arg)) {
+    auto f = ParseFamily(name);
+    if (!f)
+      return fail_input("--model: unknown model '" + name +
+                        "' (known: beckmann, ggx, phong, sun2008)");
+    models.push_back(
+        {*f, rational ? gonio::optics::SmithG1::kRational : gonio::optics::SmithG1::kExact});
+  }
+  if (models.empty()) return fail_input("--model: no model named");
+  if (loss_arg == "huber")
+    base.loss = Loss::kHuber;
+  else if (loss_arg == "cauchy")
+    base.loss = Loss::kCauchy;
+  else if (loss_arg != "none")
+    return fail_input("--loss: '" + loss_arg + "' is not none, huber or cauchy");
+  if (start != 0) base.initial_width = start;
+  if (auto s = base.Validate(); !s) return fail_input(s.error().message);
+
+  auto samples = ReadSamplesCsv(csv_path);
+  if (!samples) return fail_input(samples.error().message);
+  if (auto s = ValidateSamples(*samples, base.NumParams(), csv_path); !s)
+    return fail_input(s.error().message);
+
+  const auto groups = GroupByIncidence(*samples);
+  const IncidenceGroup* normal = nullptr;
+  for (const auto& g : groups)
+    if (std::abs(g.theta_l_deg) < 0.5) normal = &g;
+  std::cout << "gonio-fit: " << samples->size() << " samples from " << csv_path << ", "
+            << groups.size() << " incidence(s):";
+  for (const auto& g : groups) std::cout << " " << g.theta_l_deg << " (" << g.samples.size() << ")";
+  std::cout << "\n";
+
+  auto fit_all = [&](std::span<const Sample> data, std::vector<FitSummary>* fits) -> bool {
+    bool any = false;
+    for (const ModelSpec& m : models) {
+      FitOptions o = base;
+      o.model = m;
+      auto r = Fit(data, o);
+      if (!r) {
+        std::cerr << "gonio-fit: error: " << Describe(m) << ": " << r.error().message << "\n";
+        return false;
+      }
+      any = any || r->status != FitStatus::kFailed;
+      fits->push_back(*r);
+    }
+    return any;
+  };
+
+  // The paper's protocol when there is a normal-incidence sweep and others beside it.
+  std::vector<FitSummary> normal_fits, joint_fits;
+  const bool protocol = normal && groups.size() > 1;
+  bool any_ok = true;
+  if (protocol) {
+    if (!fit_all(normal->samples, &normal_fits)) return 1;
+    PrintFits("Fit at normal incidence (Walter 2007 section 6, Figure 12):", normal_fits,
+              SelectModel(normal_fits));
+    std::cout << "\nPrediction of the other incidences from the normal-incidence fit "
+                 "(rms relative error over samples above 1 % of peak; chi2/n):\n";
+    std::cout << std::left << std::setw(12) << "theta_l";
+    for (const auto& f : normal_fits) std::cout << std::setw(28) << Describe(f.model);
+    std::cout << "\n";
+    std::vector<std::vector<PredictionError>> pe;
+    for (const auto& f : normal_fits) pe.push_back(PredictIncidences(f, *samples));
+    for (std::size_t g = 0; g < groups.size(); ++g) {
+      std::cout << std::setw(12) << groups[g].theta_l_deg;
+      for (const auto& p : pe) {
+        std::ostringstream cell;
+        cell << std::setprecision(3) << 100 * p[g].rms_relative << " %  (" << p[g].reduced_chi2
+             << ")";
+        std::cout << std::setw(28) << cell.str();
+      }
+      std::cout << "\n";
+    }
+  }
+  any_ok = fit_all(*samples, &joint_fits);
+  const ModelChoice choice = SelectModel(joint_fits);
+  PrintFits(protocol ? "Joint fit of all incidences:" : "Fit:", joint_fits, choice);
+
+  if (!out_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(out_dir, ec);
+    if (ec) return fail_input(out_dir + ": cannot create: " + ec.message());
+    const auto& curve_fits = protocol ? normal_fits : joint_fits;
+    std::ofstream curves(out_dir + "/fit_curves.csv");
+    curves << "theta_l_deg,theta_v_deg,value,sigma";
+    for (const auto& f : curve_fits) curves << ",pred_" << Name(f.model.family);
+    curves << "\n" << std::setprecision(10);
+    for (const Sample& s : *samples) {
+      curves << ThetaLightDeg(s) << ',' << ThetaViewDeg(s) << ',' << s.value << ',' << s.sigma;
+      for (const auto& f : curve_fits) curves << ',' << Predict(f, s);
+      curves << "\n";
+    }
+    std::ofstream emp(out_dir + "/empirical_d.csv");
+    emp << "model,theta_h_deg,d,d_sigma\n" << std::setprecision(10);
+    for (const auto& f : curve_fits)
+      for (const auto& p : EmpiricalD(*samples, f.scale.value, f.eta.value))
+        emp << Name(f.model.family) << ',' << p.theta_h_deg << ',' << p.d << ',' << p.d_sigma
+            << "\n";
+    std::ofstream fd(out_dir + "/fitted_d.csv");
+    fd << "theta_h_deg";
+    for (const auto& f : curve_fits) fd << ",d_" << Name(f.model.family);
+    fd << "\n" << std::setprecision(10);
+    for (double t = 0; t <= 80.0 + 1e-9; t += 0.25) {
+      fd << t;
+      for (const auto& f : curve_fits) fd << ',' << FittedD(f, t);
+      fd << "\n";
+    }
+    nlohmann::json j;
+    j["samples"] = csv_path;
+    for (const auto& f : normal_fits) j["normal_incidence_fits"].push_back(ToJson(f));
+    for (const auto& f : joint_fits) j["fits"].push_back(ToJson(f));
+    j["model_choice"] = {
+        {"chosen", choice.chosen ? Describe(joint_fits[*choice.chosen].model) : ""},
+        {"reason", choice.reason}};
+    std::ofstream(out_dir + "/fit_summary.json") << j.dump(2) << "\n";
+    if (!curves || !emp || !fd) return fail_input(out_dir + ": writing the output files failed");
+    std::cout << "\nwrote " << out_dir
+              << "/{fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json}\n";
+  }
+  return any_ok ? 0 : 1;
+}

@@ -2,6 +2,7 @@
 
 #include <ceres/ceres.h>
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -27,6 +28,7 @@ double RawFromEta(double eta) {
   return std::log(u / (1 - u));
 }
 
+// Residual with eta free: the whole model on Jets.
 struct Residual {
   ModelSpec model;
   Vec3<double> l, v;
@@ -42,6 +44,62 @@ struct Residual {
   }
 };
 
+// Residual with eta fixed: the geometry is precomputed (model.h, FixedGeometry) and only
+// D * shadowing is differentiated, with respect to two parameters.
+struct FixedEtaResidual {
+  ModelSpec model;
+  FixedGeometry g;
+  double value, inv_sigma;
+
+  template <typename T>
+  bool operator()(const T* log_width, const T* log_k, T* r) const {
+    using std::exp;
+    const T m = g.factor > 0
+                    ? exp(log_k[0]) * T(g.factor) * DTimesShadowing(model, g, exp(log_width[0]))
+                    : T(0);
+    r[0] = (m - T(value)) * T(inv_sigma);
+    return true;
+  }
+};
+
+// All samples in one residual block (eta fixed, no robust loss): the same arithmetic without
+// Ceres' per-block bookkeeping, which dominates the cost of small fits. A robust loss applies
+// per residual block, so with one the samples keep a block each.
+struct BatchFixedEtaResidual {
+  ModelSpec model;
+  std::span<const FixedGeometry> g;
+  std::span<const Sample> samples;
+  std::vector<Vec3<double>> lights;   // distinct light directions (incidences)
+  std::vector<std::size_t> light_of;  // per sample, index into lights
+
+  BatchFixedEtaResidual(const ModelSpec& m, std::span<const FixedGeometry> geometry,
+                        std::span<const Sample> s)
+      : model(m), g(geometry), samples(s), light_of(s.size()) {
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      std::size_t k = 0;
+      while (k < lights.size() && optics::LengthSquared(lights[k] - s[i].light) > 0) ++k;
+      if (k == lights.size()) lights.push_back(s[i].light);
+      light_of[i] = k;
+    }
+  }
+
+  template <typename T>
+  bool operator()(const T* log_width, const T* log_k, T* r) const {
+    using std::exp;
+    const T width = exp(log_width[0]), k = exp(log_k[0]);
+    std::vector<T> k_shadow_light(lights.size());
+    for (std::size_t j = 0; j < lights.size(); ++j)
+      k_shadow_light[j] = k * ShadowingLight(model, lights[j], width);
+    for (std::size_t i = 0; i < g.size(); ++i) {
+      const T m = g[i].factor > 0 ? k_shadow_light[light_of[i]] * T(g[i].factor) *
+                                        DTimesShadowingView(model, g[i], width)
+                                  : T(0);
+      r[i] = (m - T(samples[i].value)) * T(1 / samples[i].sigma);
+    }
+    return true;
+  }
+};
+
 // Model values at k = 1 and the weighted least-squares k for them (linear in k).
 struct ScanPoint {
   double alpha_equiv = 0;
@@ -50,8 +108,8 @@ struct ScanPoint {
   double cost = std::numeric_limits<double>::infinity();
 };
 
-ScanPoint EvaluateWidth(std::span<const Sample> samples, const ModelSpec& model, double width,
-                        double eta) {
+ScanPoint EvaluateWidth(std::span<const Sample> samples, std::span<const FixedGeometry> geometry,
+                        const ModelSpec& model, double width) {
   ScanPoint p;
   p.width = width;
   p.alpha_equiv = AlphaEquivalent(model.family, width);
@@ -59,7 +117,8 @@ ScanPoint EvaluateWidth(std::span<const Sample> samples, const ModelSpec& model,
   std::vector<double> m(samples.size());
   for (std::size_t k = 0; k < samples.size(); ++k) {
     const Sample& s = samples[k];
-    m[k] = MeasurementModel(model, s.light, s.view, width, 1.0, eta);
+    const FixedGeometry& g = geometry[k];
+    m[k] = g.factor > 0 ? g.factor * DTimesShadowing(model, g, width) : 0.0;
     const double w = 1 / (s.sigma * s.sigma);
     sym += w * s.value * m[k];
     smm += w * m[k] * m[k];
@@ -74,19 +133,45 @@ ScanPoint EvaluateWidth(std::span<const Sample> samples, const ModelSpec& model,
   return p;
 }
 
-int PointsInLobe(std::span<const Sample> samples, const FitSummary& fit) {
-  // Per incidence: samples whose prediction is at least half that incidence's largest prediction.
-  int total = 0;
-  for (const auto& g : GroupByIncidence(samples)) {
-    double peak = 0;
-    std::vector<double> p;
-    for (const Sample& s : g.samples) p.push_back(Predict(fit, s)), peak = std::max(peak, p.back());
-    if (peak <= 0) continue;
-    int n = 0;
-    for (double x : p) n += x >= 0.5 * peak;
-    total = std::max(total, n);
+// The largest number, over incidences, of samples whose prediction is at least half that
+// incidence's largest prediction.
+int PointsInLobe(std::span<const Sample> samples, std::span<const double> predicted) {
+  std::vector<Vec3<double>> lights;
+  std::vector<double> peak;
+  std::vector<std::size_t> group(samples.size());
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    std::size_t g = 0;
+    while (g < lights.size() && optics::LengthSquared(lights[g] - samples[i].light) > 1e-12) ++g;
+    if (g == lights.size()) lights.push_back(samples[i].light), peak.push_back(0);
+    group[i] = g;
+    peak[g] = std::max(peak[g], predicted[i]);
   }
-  return total;
+  std::vector<int> count(lights.size(), 0);
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    count[group[i]] += peak[group[i]] > 0 && predicted[i] >= 0.5 * peak[group[i]];
+  return count.empty() ? 0 : *std::max_element(count.begin(), count.end());
+}
+
+// Covariance of the solver parameters, (J^T J)^-1 from one Jacobian evaluation at the solution
+// (with the robust loss's correction when there is one, as ceres::Covariance would). Returns
+// false when J^T J is singular to working precision: some direction is not constrained.
+bool Covariance(ceres::Problem& problem, std::vector<double*> blocks, Eigen::MatrixXd* cov) {
+  ceres::Problem::EvaluateOptions eo;
+  eo.parameter_blocks = blocks;
+  ceres::CRSMatrix j;
+  if (!problem.Evaluate(eo, nullptr, nullptr, nullptr, &j)) return false;
+  const int p = j.num_cols;
+  Eigen::MatrixXd jtj = Eigen::MatrixXd::Zero(p, p);
+  for (int r = 0; r < j.num_rows; ++r)
+    for (int a = j.rows[r]; a < j.rows[r + 1]; ++a)
+      for (int b = j.rows[r]; b < j.rows[r + 1]; ++b)
+        jtj(j.cols[a], j.cols[b]) += j.values[a] * j.values[b];
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(jtj);
+  if (es.info() != Eigen::Success) return false;
+  const Eigen::VectorXd ev = es.eigenvalues();  // ascending
+  if (!(ev(p - 1) > 0) || !(ev(0) > 1e-14 * ev(p - 1))) return false;
+  *cov = es.eigenvectors() * ev.cwiseInverse().asDiagonal() * es.eigenvectors().transpose();
+  return true;
 }
 
 // One local solve. The problem holds pointers to x, so a LocalFit lives on the heap and never
@@ -100,7 +185,8 @@ struct LocalFit {
   std::unique_ptr<ceres::Problem> problem;
 };
 
-std::unique_ptr<LocalFit> SolveFrom(std::span<const Sample> samples, const FitOptions& o,
+std::unique_ptr<LocalFit> SolveFrom(std::span<const Sample> samples,
+                                    std::span<const FixedGeometry> geometry, const FitOptions& o,
                                     double width, double k) {
   auto fit = std::make_unique<LocalFit>();
   LocalFit& f = *fit;
@@ -109,19 +195,41 @@ std::unique_ptr<LocalFit> SolveFrom(std::span<const Sample> samples, const FitOp
   f.x[2] = RawFromEta(o.eta);
   f.problem = std::make_unique<ceres::Problem>();
   ceres::Problem* problem = f.problem.get();
-  for (const Sample& s : samples) {
-    Residual* r = new Residual{o.model, s.light, s.view, s.value, 1 / s.sigma};
+  const bool automatic = o.derivatives == Derivatives::kAutomatic;
+  if (!o.fit_eta && o.loss == Loss::kNone) {
+    const int n = static_cast<int>(samples.size());
+    auto* r = new BatchFixedEtaResidual(o.model, geometry, samples);
     ceres::CostFunction* cost =
-        o.derivatives == Derivatives::kAutomatic
+        automatic
             ? static_cast<ceres::CostFunction*>(
-                  new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1>(r))
-            : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1>(r);
+                  new ceres::AutoDiffCostFunction<BatchFixedEtaResidual, ceres::DYNAMIC, 1, 1>(r,
+                                                                                               n))
+            : new ceres::NumericDiffCostFunction<BatchFixedEtaResidual, ceres::CENTRAL,
+                                                 ceres::DYNAMIC, 1, 1>(r, ceres::TAKE_OWNERSHIP, n);
+    problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1]);
+  }
+  for (std::size_t i = 0; i < samples.size() && (o.fit_eta || o.loss != Loss::kNone); ++i) {
+    const Sample& s = samples[i];
     ceres::LossFunction* loss = nullptr;
     if (o.loss == Loss::kHuber) loss = new ceres::HuberLoss(o.loss_scale);
     if (o.loss == Loss::kCauchy) loss = new ceres::CauchyLoss(o.loss_scale);
-    problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2]);
+    if (o.fit_eta) {
+      auto* r = new Residual{o.model, s.light, s.view, s.value, 1 / s.sigma};
+      ceres::CostFunction* cost =
+          automatic ? static_cast<ceres::CostFunction*>(
+                          new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1>(r))
+                    : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1>(r);
+      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2]);
+    } else {
+      auto* r = new FixedEtaResidual{o.model, geometry[i], s.value, 1 / s.sigma};
+      ceres::CostFunction* cost =
+          automatic
+              ? static_cast<ceres::CostFunction*>(
+                    new ceres::AutoDiffCostFunction<FixedEtaResidual, 1, 1, 1>(r))
+              : new ceres::NumericDiffCostFunction<FixedEtaResidual, ceres::CENTRAL, 1, 1, 1>(r);
+      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1]);
+    }
   }
-  if (!o.fit_eta) problem->SetParameterBlockConstant(&f.x[2]);
 
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_QR;
@@ -162,6 +270,8 @@ Status FitOptions::Validate() const {
   if (max_local_fits < 1) return InvalidArgument("max_local_fits must be >= 1");
   if (scan_points < 4) return InvalidArgument("scan_points must be >= 4");
   if (max_iterations < 1) return InvalidArgument("max_iterations must be >= 1");
+  if (!automatic_starts && !initial_width)
+    return InvalidArgument("automatic_starts = false needs an initial_width");
   return OkStatus();
 }
 
@@ -210,12 +320,17 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   if (Status s = o.Validate(); !s) return s.error();
   if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
 
+  // Geometry at the starting (or fixed) eta, computed once for every sample.
+  std::vector<FixedGeometry> geometry;
+  geometry.reserve(samples.size());
+  for (const Sample& s : samples) geometry.push_back(PrecomputeGeometry(s.light, s.view, o.eta));
+
   // 1. Scan the width on a log grid of alpha-equivalent (k at its optimum for each width).
   std::vector<ScanPoint> scan;
-  for (int k = 0; k < o.scan_points; ++k) {
+  for (int k = 0; o.automatic_starts && k < o.scan_points; ++k) {
     const double a = 0.003 * std::pow(2.0 / 0.003, double(k) / (o.scan_points - 1));
     if (auto w = WidthFromAlphaEquivalent(o.model.family, a))
-      scan.push_back(EvaluateWidth(samples, o.model, *w, o.eta));
+      scan.push_back(EvaluateWidth(samples, geometry, o.model, *w));
   }
   // 2. Starts: the caller's, the half-width estimate, then local minima of the scan, best first.
   std::vector<ScanPoint> starts;
@@ -223,12 +338,13 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
     if (!(width > 0) || !std::isfinite(width)) return;
     for (const auto& s : starts)
       if (std::abs(std::log(s.width / width)) < 0.05) return;
-    ScanPoint p = EvaluateWidth(samples, o.model, width, o.eta);
+    ScanPoint p = EvaluateWidth(samples, geometry, o.model, width);
     if (std::isfinite(p.cost)) starts.push_back(p);
   };
   if (o.initial_width) add_start(*o.initial_width);
-  if (auto a = EstimateAlphaFromHalfWidth(samples, o.eta))
-    if (auto w = WidthFromAlphaEquivalent(o.model.family, *a)) add_start(*w);
+  if (o.automatic_starts)
+    if (auto a = EstimateAlphaFromHalfWidth(samples, o.eta))
+      if (auto w = WidthFromAlphaEquivalent(o.model.family, *a)) add_start(*w);
   std::vector<ScanPoint> minima;
   for (std::size_t k = 0; k < scan.size(); ++k) {
     const bool left = k == 0 || scan[k].cost <= scan[k - 1].cost;
@@ -252,7 +368,7 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   FitSummary out;
   out.model = o.model;
   for (std::size_t k = 0; k < n_fits; ++k) {
-    std::unique_ptr<LocalFit> f = SolveFrom(samples, o, starts[k].width, starts[k].k);
+    std::unique_ptr<LocalFit> f = SolveFrom(samples, geometry, o, starts[k].width, starts[k].k);
     ++out.local_fits;
     if (f->converged && (!winner || f->cost < winner->cost))
       winner = std::move(f);
@@ -270,13 +386,21 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
 
   out.width.value = std::exp(best.x[0]);
   out.scale.value = std::exp(best.x[1]);
-  out.eta.value = EtaFromRaw(best.x[2]);
+  out.eta.value = o.fit_eta ? EtaFromRaw(best.x[2]) : o.eta;
   out.alpha_equivalent = AlphaEquivalent(o.model.family, out.width.value);
   out.iterations = best.iterations;
+  // Predictions at the solution: the fast path when eta stayed where the geometry was computed.
+  std::vector<double> predicted(samples.size());
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    predicted[i] = o.fit_eta ? Predict(out, samples[i])
+                   : geometry[i].factor > 0
+                       ? out.scale.value * geometry[i].factor *
+                             DTimesShadowing(o.model, geometry[i], out.width.value)
+                       : 0.0;
   out.residuals.reserve(samples.size());
   out.chi2 = 0;
-  for (const Sample& s : samples) {
-    const double r = (Predict(out, s) - s.value) / s.sigma;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const double r = (predicted[i] - samples[i].value) / samples[i].sigma;
     out.residuals.push_back(r);
     out.chi2 += r * r;
   }
@@ -284,22 +408,13 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   out.reduced_chi2 = out.chi2 / dof;
   out.aic = out.chi2 + 2.0 * out.n_params;
   out.bic = out.chi2 + out.n_params * std::log(double(out.n_points));
-  out.points_in_lobe = PointsInLobe(samples, out);
+  out.points_in_lobe = PointsInLobe(samples, predicted);
 
-  // Covariance of (log width, log k, eta raw), then the delta method.
-  ceres::Covariance::Options co;
-  co.algorithm_type = ceres::DENSE_SVD;
-  // null_space_rank 0: a rank-deficient Jacobian makes Compute() fail (reported as unconstrained)
-  // instead of silently dropping the direction and reporting a small sigma.
-  co.null_space_rank = 0;
-  co.min_reciprocal_condition_number = 1e-14;
-  ceres::Covariance cov(co);
-  std::vector<const double*> blocks = {&best.x[0], &best.x[1]};
-  if (o.fit_eta) blocks.push_back(&best.x[2]);
-  std::vector<double> c(blocks.size() * blocks.size(), 0.0);
-  bool cov_ok =
-      cov.Compute(blocks, best.problem.get()) && cov.GetCovarianceMatrix(blocks, c.data());
-  const std::size_t n = blocks.size();
+  // Covariance of (log width, log k[, eta raw]), then the delta method.
+  std::vector<double*> blocks = {winner->x + 0, winner->x + 1};
+  if (o.fit_eta) blocks.push_back(winner->x + 2);
+  Eigen::MatrixXd c;
+  bool cov_ok = Covariance(*winner->problem, blocks, &c);
   // Inflate when the residuals scatter more than the sigmas say. With a robust loss the outliers
   // it down-weights would dominate chi2, so the scatter is measured robustly (1.4826 MAD).
   double scatter2 = out.reduced_chi2;
@@ -310,13 +425,13 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
     scatter2 = std::pow(1.4826 * a[a.size() / 2], 2);
   }
   const double inflate = o.inflate_by_reduced_chi2 ? std::max(1.0, scatter2) : 1.0;
-  double var_lw = c[0] * inflate, var_lk = c[n + 1] * inflate;
+  const double var_lw = cov_ok ? c(0, 0) * inflate : 0, var_lk = cov_ok ? c(1, 1) * inflate : 0;
   cov_ok = cov_ok && var_lw > 0 && var_lk > 0;
   if (cov_ok) {
     out.width.sigma = out.width.value * std::sqrt(var_lw);
     out.scale.sigma = out.scale.value * std::sqrt(var_lk);
     if (o.fit_eta) {
-      const double var = c[2 * n + 2] * inflate;
+      const double var = c(2, 2) * inflate;
       const double u = (out.eta.value - kEtaMin) / kEtaSpan;
       out.eta.sigma = kEtaSpan * u * (1 - u) * std::sqrt(std::max(var, 0.0));
     }

@@ -43,7 +43,10 @@ struct FitOptions {
   // Start for the width in the family's own unit (alpha, exponent or s); nullopt: none.
   std::optional<double> initial_width;
   int max_local_fits = 3;  // local fits from the best distinct starts
-  int scan_points = 40;    // log grid of alpha-equivalent in [0.003, 2]
+  // false: a single local fit from initial_width (required), no scan and no half-width start.
+  // For benchmarks and peers that compare one solve; a user rarely wants it.
+  bool automatic_starts = true;
+  int scan_points = 40;  // log grid of alpha-equivalent in [0.003, 2]
   int max_iterations = 200;
   Derivatives derivatives = Derivatives::kAutomatic;
   bool inflate_by_reduced_chi2 = true;

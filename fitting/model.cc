@@ -61,6 +61,28 @@ std::optional<double> WidthFromAlphaEquivalent(Family f, double alpha) {
   }
 }
 
+FixedGeometry PrecomputeGeometry(const optics::Vec3<double>& l, const optics::Vec3<double>& v,
+                                 double eta) {
+  using namespace optics;
+  FixedGeometry g;
+  g.l = l;
+  g.v = v;
+  if (!(CosTheta(l) * CosTheta(v) < 0) || eta == 1) return g;
+  const double eta_i = CosTheta(l) > 0 ? 1 : eta, eta_o = CosTheta(v) > 0 ? 1 : eta;
+  const auto h = HalfVectorTransmission(l, eta_i, v, eta_o);
+  if (!h) return g;
+  g.h = *h;
+  // The sidedness of Walter's G1 (eq. 26, 34) and of Sun's refraction delta: the facet must face
+  // both directions from their own sides.
+  const double ldoth = Dot(l, *h), vdoth = Dot(v, *h);
+  if (!(ldoth * CosTheta(l) > 0) || !(vdoth * CosTheta(v) > 0)) return g;
+  const double denom = eta_i * ldoth + eta_o * vdoth;
+  const double F = FresnelDielectric(ldoth, eta_o / eta_i);
+  g.factor = std::abs(ldoth) * std::abs(vdoth) * eta_o * eta_o * (1 - F) /
+             (AbsCosTheta(l) * AbsCosTheta(v) * denom * denom) * AbsCosTheta(l);
+  return g;
+}
+
 std::string Describe(const ModelSpec& m) {
   std::string s = Name(m.family);
   if (m.family == Family::kBeckmann && m.g1 == optics::SmithG1::kRational) s += " (rational G1)";

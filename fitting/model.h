@@ -61,6 +61,70 @@ T ModelBtdf(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>&
   return T(0);
 }
 
+// ---- The same model split for a fixed eta (the fitter's fast path) ---------------------------
+// With eta fixed, everything in eq. 21 except D and the shadowing depends on the geometry only:
+//   S = k * factor(l, v; eta) * D(h; width) * Shadowing(l, v, h; width)
+// with factor = |l.h| |v.h| eta_o^2 (1 - F) |cos theta_l| / (|l.n| |v.n| (eta_i l.h + eta_o
+// v.h)^2), Shadowing = G1(l, h) G1(v, h) (Walter) or V(0, theta_l) V(0, theta_v) (Sun 2008; its chi
+// of eq. A.14 is the same Jacobian, docs/optics.md). The fitter computes factor once per sample and
+// differentiates only D * Shadowing. tests/fitting/model_test.cc checks it equals MeasurementModel.
+struct FixedGeometry {
+  optics::Vec3<double> l, v, h;  // h = h_t (upper hemisphere)
+  double factor = 0;             // 0 where no facet refracts l into v
+};
+
+FixedGeometry PrecomputeGeometry(const optics::Vec3<double>& l, const optics::Vec3<double>& v,
+                                 double eta);
+
+// The shadowing splits into a light part and a view part (Smith's separable G, eq. 23, and Sun's
+// V(0, theta_i) V(0, theta_o) alike). The light part is shared by every sample of an incidence,
+// so the fitter computes it once per incidence.
+template <typename T>
+T ShadowingLight(const ModelSpec& m, const optics::Vec3<double>& light, const T& width) {
+  using namespace optics;
+  const Vec3<T> l(light);
+  switch (m.family) {
+    case Family::kBeckmann:
+      return BeckmannDistribution<T>(width, m.g1).G1(l);
+    case Family::kGgx:
+      return GgxDistribution<T>(width).G1(l);
+    case Family::kPhong:
+      return PhongDistribution<T>(width).G1(l);
+    case Family::kSun2008:
+      return Sun2008Visibility(l, width);
+  }
+  return T(0);
+}
+
+// D(h) times the view part of the shadowing.
+template <typename T>
+T DTimesShadowingView(const ModelSpec& m, const FixedGeometry& g, const T& width) {
+  using namespace optics;
+  const Vec3<T> v(g.v), h(g.h);
+  switch (m.family) {
+    case Family::kBeckmann: {
+      const BeckmannDistribution<T> d(width, m.g1);
+      return d.D(h) * d.G1(v);
+    }
+    case Family::kGgx: {
+      const GgxDistribution<T> d(width);
+      return d.D(h) * d.G1(v);
+    }
+    case Family::kPhong: {
+      const PhongDistribution<T> d(width);
+      return d.D(h) * d.G1(v);
+    }
+    case Family::kSun2008:
+      return Sun2008OrientationD(h, width) * Sun2008Visibility(v, width);
+  }
+  return T(0);
+}
+
+template <typename T>
+T DTimesShadowing(const ModelSpec& m, const FixedGeometry& g, const T& width) {
+  return ShadowingLight(m, g.l, width) * DTimesShadowingView(m, g, width);
+}
+
 // S = k f(l, v) |cos theta_l|.
 template <typename T>
 T MeasurementModel(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>& v,

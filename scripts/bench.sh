@@ -1,14 +1,37 @@
 #!/usr/bin/env bash
 # Builds the benchmarks (Release) and runs them; writes JSON and charts to out/bench/.
 # Not part of the test suite: figures depend on the machine, so report them as ratios.
-# Usage: scripts/bench.sh [extra Google Benchmark flags, e.g. --benchmark_filter=G1]
+#   optics_bench     D, G1, BTDF evaluation rates  -> optics.json, g1_tradeoff.png
+#   fit_bench        time per fit, per model       -> fit.json
+#   fit_tradeoff     fitter variants               -> fit_tradeoff.json, fit_tradeoff.png
+#   scipy_peer.py    scipy least_squares vs gonio  -> scipy_peer.json
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer ...]   (default: all)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh
 cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >/dev/null
-cmake --build build-release -j "$(nproc)" --target optics_bench
+cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
-build-release/bench/optics_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true \
-  --benchmark_out=out/bench/optics.json --benchmark_out_format=json "$@"
-# Debian's matplotlib is installed for the system interpreter (DESIGN.md, Python helpers).
-/usr/bin/python3 bench/plot_g1_tradeoff.py out/bench/optics.json out/bench/g1_tradeoff.png
+parts=("$@")
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer)
+# Debian's matplotlib/scipy are installed for the system interpreter (DESIGN.md, Python helpers).
+py=/usr/bin/python3
+for part in "${parts[@]}"; do
+  case "$part" in
+    optics)
+      build-release/bench/optics_bench --benchmark_repetitions=5 \
+        --benchmark_report_aggregates_only=true \
+        --benchmark_out=out/bench/optics.json --benchmark_out_format=json
+      $py bench/plot_g1_tradeoff.py out/bench/optics.json out/bench/g1_tradeoff.png ;;
+    fit)
+      build-release/bench/fit_bench --benchmark_repetitions=5 \
+        --benchmark_report_aggregates_only=true \
+        --benchmark_out=out/bench/fit.json --benchmark_out_format=json ;;
+    tradeoff)
+      build-release/bench/fit_tradeoff out/bench/fit_tradeoff.json 40
+      $py bench/plot_fit_tradeoff.py out/bench/fit_tradeoff.json out/bench/fit_tradeoff.png ;;
+    peer)
+      $py bench/scipy_peer.py build-release out/bench/scipy_peer.json ;;
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer)" >&2; exit 2 ;;
+  esac
+done

@@ -17,7 +17,9 @@
 // Phong's width is an exponent, the others' a slope-like alpha; RoughnessToPhong() relates them.
 #pragma once
 
+#include <algorithm>
 #include <concepts>
+#include <limits>
 
 #include "fitting/optics/vecmath.h"
 
@@ -45,6 +47,45 @@ T SmithG1ExactBeckmann(const T& a) {
   if (a <= T(0)) return T(0);
   if (a > T(25)) return T(1);  // erf(a) = 1 and exp(-a^2) = 0 in double precision
   return T(2) / (T(1) + erf(a) + exp(-a * a) / (a * sqrt(T(kPi))));
+}
+
+// Inverse error function (double): Giles' single-precision approximation ("Approximating the
+// erfinv function", GPU Gems 2010) refined to double precision by Newton steps on std::erfc.
+// Domain (-1, 1); +-inf at +-1.
+inline double ErfInv(double x) {
+  if (x <= -1) return -std::numeric_limits<double>::infinity();
+  if (x >= 1) return std::numeric_limits<double>::infinity();
+  double w = -std::log((1.0 - x) * (1.0 + x)), p;
+  if (w < 5) {
+    w -= 2.5;
+    p = 2.81022636e-08;
+    for (double c : {3.43273939e-07, -3.5233877e-06, -4.39150654e-06, 0.00021858087, -0.00125372503,
+                     -0.00417768164, 0.246640727, 1.50140941})
+      p = c + p * w;
+  } else {
+    w = std::sqrt(w) - 3;
+    p = -0.000200214257;
+    for (double c : {0.000100950558, 0.00134934322, -0.00367342844, 0.00573950773, -0.0076224613,
+                     0.00943887047, 1.00167406, 2.83297682})
+      p = c + p * w;
+  }
+  // Newton refinement on |y|: on erf(y) = |x| near 0, and on log erfc(y) = log(1 - |x|) in the
+  // tails, where erf(y) - x cancels and log erfc is nearly quadratic (Giles' fit is for floats).
+  const double ax = std::abs(x);
+  double y = std::abs(p * x);
+  for (int k = 0; k < 20; ++k) {
+    const double g = 2 / std::sqrt(kPi) * std::exp(-y * y);
+    double step;
+    if (ax < 0.5) {
+      step = (std::erf(y) - ax) / g;
+    } else {
+      const double e = std::erfc(y);
+      step = -(std::log(e) - std::log1p(-ax)) * e / g;
+    }
+    y -= step;
+    if (std::abs(step) <= 1e-15 * (1 + y)) break;
+  }
+  return x < 0 ? -y : y;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -98,6 +139,61 @@ class BeckmannDistribution {
     return SphericalDirection(sinTheta, cosTheta, T(2 * kPi * u.y));
   }
   T PdfWm(const Vec3<T>& wm) const { return D(wm) * AbsCosTheta(wm); }
+
+  // Visible normals seen from w (either hemisphere, as GgxDistribution::SampleVisibleWm):
+  // density D_vis(w, m) = G1(w, m) max(0, w'.m) D(m) / |w.n| (exact Smith G1 only). Heitz and
+  // d'Eon 2014 in the numerically robust form of pbrt-v3 (BeckmannSample11): stretch, sample the
+  // slope of the unit-width visible distribution by inverting its CDF, rotate, unstretch.
+  Vec3<T> SampleVisibleWm(const Vec3<T>& w, Point2 u) const {
+    Vec3<T> wv = CosTheta(w) < T(0) ? -w : w;
+    const Vec3<T> ws = Normalize(Vec3<T>(alpha_ * wv.x, alpha_ * wv.y, wv.z));
+    const double cosThetaI = ws.z;
+    double slope_x, slope_y;
+    if (cosThetaI > 0.99999999) {
+      const double r = std::sqrt(-std::log1p(-u.x));
+      slope_x = r * std::cos(2 * kPi * u.y);
+      slope_y = r * std::sin(2 * kPi * u.y);
+    } else {
+      const double sinThetaI = std::sqrt(std::max(0.0, 1 - cosThetaI * cosThetaI));
+      const double tanThetaI = sinThetaI / cosThetaI, cotThetaI = 1 / tanThetaI;
+      // Search in the erf domain, [a, c]; b from Jakob's fitted initial guess.
+      double a = -1, c = std::erf(cotThetaI);
+      const double x = std::max(u.x, 1e-12);
+      const double thetaI = std::acos(cosThetaI);
+      const double fit = 1 + thetaI * (-0.876 + thetaI * (0.4265 - 0.0594 * thetaI));
+      double b = c - (1 + c) * std::pow(1 - x, fit);
+      const double inv_sqrt_pi = 1 / std::sqrt(kPi);
+      const double norm = 1 / (1 + c + inv_sqrt_pi * tanThetaI * std::exp(-cotThetaI * cotThetaI));
+      for (int it = 0; it < 100; ++it) {
+        if (!(b >= a && b <= c)) b = 0.5 * (a + c);  // bisection fallback (also catches NaN)
+        const double inv = ErfInv(b);
+        const double value = norm * (1 + b + inv_sqrt_pi * tanThetaI * std::exp(-inv * inv)) - x;
+        if (std::abs(value) < 1e-12) break;
+        const double derivative = norm * (1 - inv * tanThetaI);
+        if (value > 0)
+          c = b;
+        else
+          a = b;
+        b -= value / derivative;
+      }
+      slope_x = ErfInv(b);
+      slope_y = ErfInv(2 * std::clamp(u.y, 1e-12, 1 - 1e-12) - 1);
+    }
+    // Rotate into the azimuth of the stretched direction, unstretch, and form the normal.
+    const double sinTheta = std::sqrt(ws.x * ws.x + ws.y * ws.y);
+    const double cosPhi = sinTheta > 0 ? ws.x / sinTheta : 1,
+                 sinPhi = sinTheta > 0 ? ws.y / sinTheta : 0;
+    const double sx = cosPhi * slope_x - sinPhi * slope_y;
+    const double sy = sinPhi * slope_x + cosPhi * slope_y;
+    return Normalize(Vec3<T>(T(-alpha_ * sx), T(-alpha_ * sy), T(1)));
+  }
+  T PdfVisibleWm(const Vec3<T>& w, const Vec3<T>& wm) const {
+    const T cos_w = AbsCosTheta(w);
+    if (cos_w <= T(0)) return T(0);
+    const T wm_dot = CosTheta(w) < T(0) ? -Dot(w, wm) : Dot(w, wm);
+    if (wm_dot <= T(0)) return T(0);
+    return G1(w, wm) * wm_dot * D(wm) / cos_w;
+  }
 
   // The widened width of section 5.3 for sampling at incidence w: alpha' = (1.2 - 0.2 sqrt|i.n|)
   // alpha. Sampling with it bounds the eq. 41 weights (to about 4) at grazing incidence.

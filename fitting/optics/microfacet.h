@@ -47,7 +47,8 @@ enum class NormalSampling {
   kDistribution,  // p_m = D(m) |m.n| (eq. 24) - the paper's sampling
   kWidened,       // D with alpha' = (1.2 - 0.2 sqrt|i.n|) alpha (section 5.3); distributions
                   // without Widened() (Phong) fall back to kDistribution
-  kVisible,       // visible normals D_vis(i, m) (GGX only; others fall back to kDistribution)
+  kVisible,       // visible normals D_vis(i, m) (GGX and Beckmann; Phong falls back to
+                  // kDistribution)
 };
 
 template <typename T>

@@ -20,8 +20,8 @@ constexpr double kDeg = kPi / 180;
 constexpr double kEta = 1.51;
 
 // Total number of chi-square tests in this file, for the multiple-test correction.
-constexpr int kNumNormalTests = 3 + 3 + 3 + 4 + 1;
-constexpr int kNumDirectionTests = 3 * 7 + 4 * 3;
+constexpr int kNumNormalTests = 3 + 3 + 3 + 4 + 8 + 1;
+constexpr int kNumDirectionTests = 3 * 7 + 5 * 3;
 const double kLevel = SidakLevel(kNumNormalTests + kNumDirectionTests);
 
 enum class Family { kBeckmann, kGgx, kPhong };
@@ -79,6 +79,30 @@ TEST(SampleNormals, GgxVisibleNormalsFollowDvis) {
     EXPECT_GT(r.p_value, kLevel) << "theta_v " << tv << ": " << r.Describe();
     EXPECT_NEAR(r.expected_mass, 1.0, 1e-3);
   }
+}
+
+TEST(SampleNormals, BeckmannVisibleNormalsFollowDvis) {
+  std::uniform_real_distribution<double> u(0, 1);
+  for (double a : {0.1, 0.8})
+    for (double tv : {0.0, 60.0, 85.0, 120.0}) {
+      BeckmannDistribution<double> d(a);
+      const Vec3<double> v = DirectionInPlane(tv * kDeg);
+      const auto r = RunChi2(
+          [&](std::mt19937_64& rng) -> std::optional<Vec3<double>> {
+            return d.SampleVisibleWm(v, {u(rng), u(rng)});
+          },
+          [&](const Vec3<double>& m) { return d.PdfVisibleWm(v, m); });
+      EXPECT_GT(r.p_value, kLevel) << "alpha " << a << " theta_v " << tv << ": " << r.Describe();
+      EXPECT_NEAR(r.expected_mass, 1.0, 1e-3) << "alpha " << a << " theta_v " << tv;
+    }
+}
+
+TEST(ErfInv, InvertsErfToDoublePrecision) {
+  for (double x = -0.999999; x < 1; x += 0.0137) EXPECT_NEAR(std::erf(ErfInv(x)), x, 1e-15) << x;
+  // Reference values from scipy.special.erfinv.
+  EXPECT_NEAR(ErfInv(0.5), 0.4769362762044699, 1e-15);
+  EXPECT_NEAR(ErfInv(-0.999999), -3.458910737275499, 1e-12);
+  EXPECT_NEAR(ErfInv(1 - 1e-15), 5.675915739744713, 1e-9);
 }
 
 TEST(SampleNormals, WidenedBeckmannFollowsItsOwnDCos) {
@@ -164,6 +188,7 @@ std::vector<DirectionCase> DirectionCases() {
     cases.push_back({Family::kGgx, 0.344, NormalSampling::kVisible, t});
     cases.push_back({Family::kGgx, 0.1, NormalSampling::kVisible, t});
     cases.push_back({Family::kBeckmann, 0.8, NormalSampling::kWidened, t});
+    cases.push_back({Family::kBeckmann, 0.344, NormalSampling::kVisible, t});
   }
   return cases;
 }

@@ -4,6 +4,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <boost/math/special_functions/gamma.hpp>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -256,6 +257,8 @@ const char* ToString(FitStatus s) {
       return "converged";
     case FitStatus::kUnconstrained:
       return "unconstrained";
+    case FitStatus::kPoorFit:
+      return "poor fit";
     case FitStatus::kFailed:
       return "failed";
   }
@@ -449,6 +452,16 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
         << " %: the data barely constrain it";
   out.message = why.str();
   out.status = out.message.empty() ? FitStatus::kConverged : FitStatus::kUnconstrained;
+  // Goodness of fit: P(chi2_dof >= chi2). With honest sigmas a correct model gives ~U(0, 1).
+  const double p_value = boost::math::gamma_q(0.5 * dof, 0.5 * out.chi2);
+  if (out.status == FitStatus::kConverged && p_value < 1e-6) {
+    std::ostringstream poor;
+    poor << "the model does not describe the data: chi2/dof = " << out.reduced_chi2 << " over "
+         << dof << " degrees of freedom (p = " << p_value
+         << "); the width is not a measurement of the surface";
+    out.message = poor.str();
+    out.status = FitStatus::kPoorFit;
+  }
   return out;
 }
 
@@ -486,6 +499,8 @@ ModelChoice SelectModel(std::span<const FitSummary> fits, double decisive_delta_
     c.chosen = smallest[0];
     os << Describe(fits[smallest[0]].model) << ": every other model is " << decisive_delta_bic
        << " or more worse in BIC, or has more parameters than the data support";
+    if (fits[smallest[0]].status == FitStatus::kPoorFit)
+      os << "; but even it does not describe the data (" << fits[smallest[0]].message << ")";
   } else {
     os << "the data cannot tell apart";
     for (std::size_t k : smallest)

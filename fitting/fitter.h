@@ -17,7 +17,8 @@
 //     robust scatter (1.4826 x median |residual|) instead, since the outliers dominate chi-square.
 //   * A fit the data cannot support is reported, not hidden: FitStatus::kUnconstrained when fewer
 //     than 3 samples lie inside the fitted lobe's half maximum, the width's relative uncertainty
-//     exceeds 50 %, or the covariance is singular.
+//     exceeds 50 %, or the covariance is singular; FitStatus::kPoorFit when the model does not
+//     describe the data (chi-square p-value < 1e-6): its width is then not a measurement.
 #pragma once
 
 #include <optional>
@@ -59,6 +60,8 @@ struct FitOptions {
 enum class FitStatus {
   kConverged,      // the solver converged and the data constrain the width
   kUnconstrained,  // converged, but the data do not determine the width (see message)
+  kPoorFit,        // converged, but the model does not describe the data: chi-square's p-value
+                   // is below 1e-6 (e.g. multiple scattering on very rough glass, wrong family)
   kFailed,         // no start converged
 };
 const char* ToString(FitStatus s);
@@ -112,7 +115,7 @@ struct ModelChoice {
   std::vector<double> delta_bic;  // BIC - min BIC, per fit (inf for failed fits)
 };
 
-// Picks the smallest model the data support: among converged, constrained fits within
+// Picks the smallest model the data support: among converged (or poor), constrained fits within
 // `decisive_delta_bic` of the lowest BIC (10 = "very strong" evidence, Kass & Raftery 1995), the
 // one with the fewest parameters; if several share that count, none (the data cannot tell them
 // apart).

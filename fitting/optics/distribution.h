@@ -140,52 +140,11 @@ class BeckmannDistribution {
   }
   T PdfWm(const Vec3<T>& wm) const { return D(wm) * AbsCosTheta(wm); }
 
-  // Visible normals seen from w (either hemisphere, as GgxDistribution::SampleVisibleWm):
-  // density D_vis(w, m) = G1(w, m) max(0, w'.m) D(m) / |w.n| (exact Smith G1 only). Heitz and
-  // d'Eon 2014 in the numerically robust form of pbrt-v3 (BeckmannSample11): stretch, sample the
-  // slope of the unit-width visible distribution by inverting its CDF, rotate, unstretch.
+  // Visible normals seen from w (either hemisphere, as GgxDistribution::SampleVisibleWm: from
+  // below, the surface is seen from -w): density D_vis(w, m) = G1(w, m) max(0, w'.m) D(m) / |w.n|
+  // (exact Smith G1). Heitz and d'Eon 2014 in pbrt-v3's robust form (BeckmannSample11).
   Vec3<T> SampleVisibleWm(const Vec3<T>& w, Point2 u) const {
-    Vec3<T> wv = CosTheta(w) < T(0) ? -w : w;
-    const Vec3<T> ws = Normalize(Vec3<T>(alpha_ * wv.x, alpha_ * wv.y, wv.z));
-    const double cosThetaI = ws.z;
-    double slope_x, slope_y;
-    if (cosThetaI > 0.99999999) {
-      const double r = std::sqrt(-std::log1p(-u.x));
-      slope_x = r * std::cos(2 * kPi * u.y);
-      slope_y = r * std::sin(2 * kPi * u.y);
-    } else {
-      const double sinThetaI = std::sqrt(std::max(0.0, 1 - cosThetaI * cosThetaI));
-      const double tanThetaI = sinThetaI / cosThetaI, cotThetaI = 1 / tanThetaI;
-      // Search in the erf domain, [a, c]; b from Jakob's fitted initial guess.
-      double a = -1, c = std::erf(cotThetaI);
-      const double x = std::max(u.x, 1e-12);
-      const double thetaI = std::acos(cosThetaI);
-      const double fit = 1 + thetaI * (-0.876 + thetaI * (0.4265 - 0.0594 * thetaI));
-      double b = c - (1 + c) * std::pow(1 - x, fit);
-      const double inv_sqrt_pi = 1 / std::sqrt(kPi);
-      const double norm = 1 / (1 + c + inv_sqrt_pi * tanThetaI * std::exp(-cotThetaI * cotThetaI));
-      for (int it = 0; it < 100; ++it) {
-        if (!(b >= a && b <= c)) b = 0.5 * (a + c);  // bisection fallback (also catches NaN)
-        const double inv = ErfInv(b);
-        const double value = norm * (1 + b + inv_sqrt_pi * tanThetaI * std::exp(-inv * inv)) - x;
-        if (std::abs(value) < 1e-12) break;
-        const double derivative = norm * (1 - inv * tanThetaI);
-        if (value > 0)
-          c = b;
-        else
-          a = b;
-        b -= value / derivative;
-      }
-      slope_x = ErfInv(b);
-      slope_y = ErfInv(2 * std::clamp(u.y, 1e-12, 1 - 1e-12) - 1);
-    }
-    // Rotate into the azimuth of the stretched direction, unstretch, and form the normal.
-    const double sinTheta = std::sqrt(ws.x * ws.x + ws.y * ws.y);
-    const double cosPhi = sinTheta > 0 ? ws.x / sinTheta : 1,
-                 sinPhi = sinTheta > 0 ? ws.y / sinTheta : 0;
-    const double sx = cosPhi * slope_x - sinPhi * slope_y;
-    const double sy = sinPhi * slope_x + cosPhi * slope_y;
-    return Normalize(Vec3<T>(T(-alpha_ * sx), T(-alpha_ * sy), T(1)));
+    return SampleVisibleUnflipped(CosTheta(w) < T(0) ? -w : w, u);
   }
   T PdfVisibleWm(const Vec3<T>& w, const Vec3<T>& wm) const {
     const T cos_w = AbsCosTheta(w);
@@ -193,6 +152,30 @@ class BeckmannDistribution {
     const T wm_dot = CosTheta(w) < T(0) ? -Dot(w, wm) : Dot(w, wm);
     if (wm_dot <= T(0)) return T(0);
     return G1(w, wm) * wm_dot * D(wm) / cos_w;
+  }
+
+  // Visible normals of the upper-hemisphere facets for any w with w.z > -1, NOT flipped: what a
+  // ray travelling along -w meets, also when it arrives from below the mean plane mid-walk
+  // (Heitz et al. 2016). Density max(0, w.m) D(m) / A(w) with projected area
+  // A(w) = cos(theta)(1 + Lambda(w)) for w.z > 0 and |cos(theta)| Lambda(-w) for w.z < 0.
+  Vec3<T> SampleVisibleUnflipped(const Vec3<T>& w, Point2 u) const {
+    const Vec3<T> ws = Normalize(Vec3<T>(alpha_ * w.x, alpha_ * w.y, w.z));
+    double slope_x, slope_y;
+    SampleSlope11(ws.z, u, &slope_x, &slope_y);
+    // Rotate into the azimuth of the stretched direction, unstretch, and form the normal.
+    const double sinTheta = std::sqrt(ws.x * ws.x + ws.y * ws.y);
+    const double cosPhi = sinTheta > 0 ? ws.x / sinTheta : 1;
+    const double sinPhi = sinTheta > 0 ? ws.y / sinTheta : 0;
+    const double sx = cosPhi * slope_x - sinPhi * slope_y;
+    const double sy = sinPhi * slope_x + cosPhi * slope_y;
+    return Normalize(Vec3<T>(T(-alpha_ * sx), T(-alpha_ * sy), T(1)));
+  }
+  T PdfVisibleUnflipped(const Vec3<T>& w, const Vec3<T>& wm) const {
+    const T wm_dot = Dot(w, wm);
+    if (wm_dot <= T(0) || CosTheta(wm) <= T(0)) return T(0);
+    const T area =
+        CosTheta(w) > T(0) ? CosTheta(w) * (T(1) + Lambda(w)) : -CosTheta(w) * Lambda(-w);
+    return area > T(0) ? wm_dot * D(wm) / area : T(0);
   }
 
   // The widened width of section 5.3 for sampling at incidence w: alpha' = (1.2 - 0.2 sqrt|i.n|)
@@ -203,6 +186,42 @@ class BeckmannDistribution {
   }
 
  private:
+  // Slope of the unit-width visible distribution for a direction at cos(theta) in (-1, 1]
+  // (pbrt-v3's BeckmannSample11: invert the CDF in the erf domain by safeguarded Newton). The
+  // CDF expression holds for cos(theta) < 0 as well (it is cos(theta) (1 + Lambda) normalised).
+  static void SampleSlope11(double cosThetaI, Point2 u, double* slope_x, double* slope_y) {
+    if (cosThetaI > 0.99999999) {
+      const double r = std::sqrt(-std::log1p(-u.x));
+      *slope_x = r * std::cos(2 * kPi * u.y);
+      *slope_y = r * std::sin(2 * kPi * u.y);
+      return;
+    }
+    const double sinThetaI = std::sqrt(std::max(0.0, 1 - cosThetaI * cosThetaI));
+    const double tanThetaI = sinThetaI / cosThetaI, cotThetaI = cosThetaI / sinThetaI;
+    // Search in the erf domain, [a, c]; b from Jakob's fitted initial guess.
+    double a = -1, c = std::erf(cotThetaI);
+    const double x = std::max(u.x, 1e-12);
+    const double thetaI = std::acos(cosThetaI);
+    const double fit = 1 + thetaI * (-0.876 + thetaI * (0.4265 - 0.0594 * thetaI));
+    double b = c - (1 + c) * std::pow(1 - x, fit);
+    const double inv_sqrt_pi = 1 / std::sqrt(kPi);
+    const double norm = 1 / (1 + c + inv_sqrt_pi * tanThetaI * std::exp(-cotThetaI * cotThetaI));
+    for (int it = 0; it < 100; ++it) {
+      if (!(b >= a && b <= c)) b = 0.5 * (a + c);  // bisection fallback (also catches NaN)
+      const double inv = ErfInv(b);
+      const double value = norm * (1 + b + inv_sqrt_pi * tanThetaI * std::exp(-inv * inv)) - x;
+      if (std::abs(value) < 1e-12 || c - a < 1e-15) break;
+      const double derivative = norm * (1 - inv * tanThetaI);
+      if (value > 0)
+        c = b;
+      else
+        a = b;
+      b -= value / derivative;
+    }
+    *slope_x = ErfInv(b);
+    *slope_y = ErfInv(2 * std::clamp(u.y, 1e-12, 1 - 1e-12) - 1);
+  }
+
   T alpha_;
   SmithG1 g1_;
 };

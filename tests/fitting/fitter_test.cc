@@ -152,6 +152,7 @@ TEST(Protocol, WrongFamilyFailsToExtrapolate) {
   o.model.family = Family::kBeckmann;
   const FitSummary normal = MustFit(GroupByIncidence(all)[0].samples, o);
   EXPECT_GT(normal.reduced_chi2, 5.0);
+  EXPECT_EQ(normal.status, FitStatus::kPoorFit) << normal.message;
   const auto pe = PredictIncidences(normal, all);
   EXPECT_GT(pe[1].reduced_chi2, 5.0);
 }

@@ -20,7 +20,7 @@ constexpr double kDeg = kPi / 180;
 constexpr double kEta = 1.51;
 
 // Total number of chi-square tests in this file, for the multiple-test correction.
-constexpr int kNumNormalTests = 3 + 3 + 3 + 4 + 8 + 1;
+constexpr int kNumNormalTests = 3 + 3 + 3 + 4 + 8 + 4 + 1;
 constexpr int kNumDirectionTests = 3 * 7 + 5 * 3;
 const double kLevel = SidakLevel(kNumNormalTests + kNumDirectionTests);
 
@@ -95,6 +95,23 @@ TEST(SampleNormals, BeckmannVisibleNormalsFollowDvis) {
       EXPECT_GT(r.p_value, kLevel) << "alpha " << a << " theta_v " << tv << ": " << r.Describe();
       EXPECT_NEAR(r.expected_mass, 1.0, 1e-3) << "alpha " << a << " theta_v " << tv;
     }
+}
+
+TEST(SampleNormals, BeckmannVisibleNormalsBelowTheHorizonFollowSmithsExtendedDvis) {
+  // Mid-walk a ray may meet the surface from below the mean plane (Heitz et al. 2016): the
+  // unflipped sampler and density, with the projected area |cos| Lambda(-w).
+  std::uniform_real_distribution<double> u(0, 1);
+  for (double tv : {30.0, 95.0, 120.0, 150.0}) {
+    BeckmannDistribution<double> d(0.6);
+    const Vec3<double> v = DirectionInPlane(tv * kDeg);
+    const auto r = RunChi2(
+        [&](std::mt19937_64& rng) -> std::optional<Vec3<double>> {
+          return d.SampleVisibleUnflipped(v, {u(rng), u(rng)});
+        },
+        [&](const Vec3<double>& m) { return d.PdfVisibleUnflipped(v, m); });
+    EXPECT_GT(r.p_value, kLevel) << "theta_v " << tv << ": " << r.Describe();
+    EXPECT_NEAR(r.expected_mass, 1.0, 1e-3) << "theta_v " << tv;
+  }
 }
 
 TEST(ErfInv, InvertsErfToDoublePrecision) {

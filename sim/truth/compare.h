@@ -1,0 +1,35 @@
+// Comparing a Monte Carlo table with an analytic BTDF on the same bins (issue #8).
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "sim/truth/btdf_table.h"
+
+namespace gonio::sim {
+
+// f_t(l, v): light l above, view v below (optics conventions).
+using BtdfFunction =
+    std::function<double(const optics::Vec3<double>& l, const optics::Vec3<double>& v)>;
+
+// The analytic model averaged over each bin the way the table is (|cos theta_o|-weighted),
+// by 4 x 4 Gauss-Legendre points per bin.
+std::vector<double> TabulateModel(const BtdfTable& shape, const BtdfFunction& f_t);
+
+struct TableDifference {
+  // sum |f_mc - f_model| cos dOmega / sum f_mc cos dOmega: 0 identical, 2 disjoint lobes.
+  double l1_relative = 0;
+  // The same sum for pure Monte Carlo noise (sqrt(2/pi) * se per bin): what l1_relative would be
+  // if the model were exact.
+  double l1_noise = 0;
+  double transmitted_mc = 0, transmitted_model = 0;
+};
+TableDifference Compare(const BtdfTable& mc, const std::vector<double>& model_bins);
+
+// The single-scattering models of the project, for the table's geometry: Walter 2007 eq. 21
+// (Beckmann, alpha = 2/s, separable Smith G) and Sun 2008 eq. 25.
+BtdfFunction WalterBeckmannModel(double s, double n_above, double n_below);
+BtdfFunction Sun2008Model(double s, double n_above, double n_below);
+
+}  // namespace gonio::sim

@@ -1,0 +1,48 @@
+#include "sim/truth/ground_truth.h"
+
+#include <cstdio>
+#include <cstdlib>
+#include <sstream>
+
+namespace gonio::sim {
+
+double TabulatedTruth::BtdfCos(const optics::Vec3<double>& l, const optics::Vec3<double>& v) const {
+  const double ti = t_.theta_i_deg * optics::kPi / 180;
+  if (std::abs(l.z - std::cos(ti)) > 1e-9 || std::abs(l.x - std::sin(ti)) > 1e-9) {
+    std::fprintf(stderr, "gonio: bug: TabulatedTruth '%s' holds theta_i %g only\n", name_.c_str(),
+                 t_.theta_i_deg);
+    std::abort();
+  }
+  const int k = t_.BinOf(v);
+  return k < 0 ? 0.0 : t_.f[k] * std::abs(l.z);
+}
+
+GroundTruthChoice ChooseGroundTruth(double s, double n_above, double n_below, double theta_i_deg,
+                                    double noise_l1) {
+  MonteCarloOptions probe;
+  probe.rays = 50'000;
+  const BtdfTable st = StatisticalMonteCarlo(s, n_above, n_below, theta_i_deg, probe);
+  const TableDifference d =
+      Compare(st, TabulateModel(st, WalterBeckmannModel(s, n_above, n_below)));
+  GroundTruthChoice c;
+  c.analytic_error_l1 = std::max(0.0, d.l1_relative - d.l1_noise);
+  std::ostringstream os;
+  if (c.analytic_error_l1 <= noise_l1) {
+    c.kind = TruthKind::kAnalytic;
+    os << "analytic single scattering (Walter 2007, Beckmann alpha = 2/s): its error "
+       << c.analytic_error_l1 << " is within the measurement noise " << noise_l1;
+  } else if (s >= 2) {
+    c.kind = TruthKind::kStatisticalMonteCarlo;
+    os << "statistical Monte Carlo: single scattering is off by " << c.analytic_error_l1
+       << " (> noise " << noise_l1 << "), and for s >= 2 Smith's statistics match explicit "
+       << "surfaces within a measurement's noise";
+  } else {
+    c.kind = TruthKind::kExplicitSurfaces;
+    os << "explicit surfaces: single scattering is off by " << c.analytic_error_l1
+       << ", and below s = 2 Smith's uncorrelated statistics differ from real surfaces too";
+  }
+  c.reason = os.str();
+  return c;
+}
+
+}  // namespace gonio::sim

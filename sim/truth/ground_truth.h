@@ -1,0 +1,69 @@
+// The sample's ground truth behind one interface (issue #4's scene reads it; issue #8 fills it):
+// the BTDF*cos the bench would measure, S/k = f_t(l, v) |cos theta_l|, from an analytic
+// single-scattering model or a Monte Carlo table. ChooseGroundTruth picks the cheapest one whose
+// error is below the measurement noise ("model no more than the scene needs") and says why.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "sim/truth/btdf_table.h"
+#include "sim/truth/compare.h"
+#include "sim/truth/monte_carlo.h"
+
+namespace gonio::sim {
+
+class GroundTruth {
+ public:
+  virtual ~GroundTruth() = default;
+  virtual std::string Name() const = 0;
+  // f_t(l, v) |cos theta_l| for light l above and view v below (optics conventions).
+  virtual double BtdfCos(const optics::Vec3<double>& l, const optics::Vec3<double>& v) const = 0;
+};
+
+// An analytic model (microseconds per evaluation).
+class AnalyticTruth final : public GroundTruth {
+ public:
+  AnalyticTruth(std::string name, BtdfFunction f) : name_(std::move(name)), f_(std::move(f)) {}
+  std::string Name() const override { return name_; }
+  double BtdfCos(const optics::Vec3<double>& l, const optics::Vec3<double>& v) const override {
+    return f_(l, v) * std::abs(l.z);
+  }
+
+ private:
+  std::string name_;
+  BtdfFunction f_;
+};
+
+// A Monte Carlo table, for its own incidence only: other light directions are a caller's bug
+// (a table is per incidence; build one per incidence of the plan) and abort.
+class TabulatedTruth final : public GroundTruth {
+ public:
+  TabulatedTruth(std::string name, BtdfTable table)
+      : name_(std::move(name)), t_(std::move(table)) {}
+  std::string Name() const override { return name_; }
+  double BtdfCos(const optics::Vec3<double>& l, const optics::Vec3<double>& v) const override;
+  const BtdfTable& table() const { return t_; }
+
+ private:
+  std::string name_;
+  BtdfTable t_;
+};
+
+enum class TruthKind { kAnalytic, kStatisticalMonteCarlo, kExplicitSurfaces };
+
+struct GroundTruthChoice {
+  TruthKind kind = TruthKind::kAnalytic;
+  std::string reason;
+  double analytic_error_l1 = 0;  // Walter single scattering vs the statistical probe, noise removed
+};
+
+// Decides for a sample of smoothness s at one incidence, given the measurement's noise as a
+// relative L1 over the transmitted lobe (e.g. 0.02). A short statistical Monte Carlo probe
+// (~0.1 s) measures the single-scattering error; below s = 2 the explicit surfaces are chosen,
+// because Smith's uncorrelated statistics themselves then differ from real surfaces by more than
+// a measurement's noise (docs/ground_truth.md, failure map).
+GroundTruthChoice ChooseGroundTruth(double s, double n_above, double n_below, double theta_i_deg,
+                                    double noise_l1);
+
+}  // namespace gonio::sim

@@ -230,7 +230,7 @@ double PredictedAlpha(double s) { return 2.0 / s; }
 double PredictedAlphaOfMesh(double s, double samples_per_tau) {
   // Per-axis slope variance of the mesh: 2 sigma^2 (1 - C(dx)) / dx^2 = alpha^2 / 2.
   return 2.0 / s * samples_per_tau *
-         std::sqrt(1 - std::exp(-1 / (samples_per_tau * samples_per_tau)));
+         std::sqrt(-std::expm1(-1 / (samples_per_tau * samples_per_tau)));
 }
 
 BtdfTable ExplicitSurfaceMonteCarlo(double s, double n_above, double n_below, double theta_i_deg,

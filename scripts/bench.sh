@@ -5,7 +5,9 @@
 #   fit_bench        time per fit, per model       -> fit.json
 #   fit_tradeoff     fitter variants               -> fit_tradeoff.json, fit_tradeoff.png
 #   scipy_peer.py    scipy least_squares vs gonio  -> scipy_peer.json
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer ...]   (default: all)
+#   truth_bench      ground-truth cost/accuracy and the single-scattering failure map
+#                                                  -> truth.json, truth_cost.png, truth_failure.png
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth ...]   (default: all)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh
@@ -13,7 +15,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth)
 # Debian's matplotlib/scipy are installed for the system interpreter (DESIGN.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -32,6 +34,10 @@ for part in "${parts[@]}"; do
       $py bench/plot_fit_tradeoff.py out/bench/fit_tradeoff.json out/bench/fit_tradeoff.png ;;
     peer)
       $py bench/scipy_peer.py build-release out/bench/scipy_peer.json ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer)" >&2; exit 2 ;;
+    truth)
+      build-release/bench/truth_bench out/bench/truth.json
+      $py bench/plot_truth.py out/bench/truth.json out/bench/truth_cost.png \
+        out/bench/truth_failure.png ;;
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth)" >&2; exit 2 ;;
   esac
 done

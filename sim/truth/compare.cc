@@ -53,6 +53,18 @@ TableDifference Compare(const BtdfTable& mc, const std::vector<double>& model) {
   return r;
 }
 
+TableDifference CompareTables(const BtdfTable& a, const BtdfTable& b) {
+  TableDifference r = Compare(a, b.f);
+  double noise = 0;
+  for (int i = 0; i < a.n_theta; ++i)
+    for (int j = 0; j < a.n_phi; ++j) {
+      const int k = a.Index(i, j);
+      noise += std::sqrt(2 / optics::kPi) * std::hypot(a.f_se[k], b.f_se[k]) * a.CosSolidAngle(i);
+    }
+  r.l1_noise = r.transmitted_mc > 0 ? noise / r.transmitted_mc : 0;
+  return r;
+}
+
 BtdfFunction WalterBeckmannModel(double s, double n_above, double n_below) {
   const optics::RoughDielectricBsdf<optics::BeckmannDistribution<double>> bsdf(
       optics::BeckmannDistribution<double>(PredictedAlpha(s)), n_below / n_above);

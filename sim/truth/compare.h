@@ -26,6 +26,12 @@ struct TableDifference {
   double transmitted_mc = 0, transmitted_model = 0;
 };
 TableDifference Compare(const BtdfTable& mc, const std::vector<double>& model_bins);
+// Two Monte Carlo tables of the same shape: l1_noise combines both tables' errors.
+TableDifference CompareTables(const BtdfTable& a, const BtdfTable& b);
+// The part of a difference not explained by Monte Carlo noise: max(0, l1 - noise).
+inline double ExcessL1(const TableDifference& d) {
+  return d.l1_relative > d.l1_noise ? d.l1_relative - d.l1_noise : 0.0;
+}
 
 // The single-scattering models of the project, for the table's geometry: Walter 2007 eq. 21
 // (Beckmann, alpha = 2/s, separable Smith G) and Sun 2008 eq. 25.

@@ -21,7 +21,9 @@ using optics::Vec3;
 class HeightField {
  public:
   // Gaussian heights of RMS sigma with Gaussian correlation exp(-r^2/tau^2): white noise filtered
-  // by the square root of the spectrum, exp(-k^2 tau^2 / 8), and normalised to RMS sigma exactly.
+  // by the square root of the spectrum, exp(-k^2 tau^2 / 8). Scaled by the ensemble variance
+  // (1/N^2) sum G_k^2, not by the patch's own RMS: a finite patch lacks some low frequencies, and
+  // renormalising to its sample RMS would inflate the slopes (by 3-8 % at 25 tau).
   static HeightField Gaussian(int n, double dx, double sigma, double tau, std::uint64_t seed) {
     cv::Mat noise(n, n, CV_64F);
     cv::RNG rng(seed);
@@ -29,16 +31,18 @@ class HeightField {
     cv::Mat spec;
     cv::dft(noise, spec, cv::DFT_COMPLEX_OUTPUT);
     const double dk = 2 * optics::kPi / (n * dx);
+    double sum_g2 = 0;
     for (int a = 0; a < n; ++a)
       for (int b = 0; b < n; ++b) {
         const double kx = dk * (a <= n / 2 ? a : a - n), ky = dk * (b <= n / 2 ? b : b - n);
         const double g = std::exp(-(kx * kx + ky * ky) * tau * tau / 8);
         spec.at<cv::Vec2d>(a, b) *= g;
+        sum_g2 += g * g;
       }
     cv::Mat h;
     cv::idft(spec, h, cv::DFT_REAL_OUTPUT | cv::DFT_SCALE);
-    cv::Scalar mean, sd;
-    cv::meanStdDev(h, mean, sd);
+    const double scale = sigma / std::sqrt(sum_g2 / (double(n) * n));
+    const double mean = cv::mean(h)[0];
     HeightField f;
     f.n_ = n;
     f.dx_ = dx;
@@ -47,7 +51,7 @@ class HeightField {
     f.zmax_ = -f.zmin_;
     for (int a = 0; a < n; ++a)
       for (int b = 0; b < n; ++b) {
-        const double z = (h.at<double>(a, b) - mean[0]) * sigma / sd[0];
+        const double z = (h.at<double>(a, b) - mean) * scale;
         f.h_[static_cast<std::size_t>(a) * n + b] = z;
         f.zmin_ = std::min(f.zmin_, z);
         f.zmax_ = std::max(f.zmax_, z);

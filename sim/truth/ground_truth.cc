@@ -25,7 +25,7 @@ GroundTruthChoice ChooseGroundTruth(double s, double n_above, double n_below, do
   const TableDifference d =
       Compare(st, TabulateModel(st, WalterBeckmannModel(s, n_above, n_below)));
   GroundTruthChoice c;
-  c.analytic_error_l1 = std::max(0.0, d.l1_relative - d.l1_noise);
+  c.analytic_error_l1 = ExcessL1(d);
   std::ostringstream os;
   if (c.analytic_error_l1 <= noise_l1) {
     c.kind = TruthKind::kAnalytic;

@@ -25,14 +25,22 @@ MonteCarloOptions Rays(std::int64_t n) {
 }
 
 TEST(ExplicitSurface, HasTheRequestedHeightAndCorrelationStatistics) {
+  // Averaged over the 4 realisations the Monte Carlo uses (one 25.6-tau patch scatters by a few
+  // percent). Scaled to the ensemble variance, a finite patch lacks some low frequencies, so its
+  // height RMS falls short of sigma while its slopes (high frequencies) are as predicted.
   for (double s : {0.5, 3.0}) {
-    const SurfaceStats st = MeasureSurface(s, {}, 1);
+    SurfaceStats mean;
+    for (std::uint64_t seed = 1; seed <= 4; ++seed) {
+      const SurfaceStats st = MeasureSurface(s, {}, seed);
+      mean.rms_height += st.rms_height / 4;
+      mean.rms_slope_x += st.rms_slope_x / 4;
+      mean.rms_slope_y += st.rms_slope_y / 4;
+      mean.correlation_at_tau += st.correlation_at_tau / 4;
+    }
     const double predicted_slope = PredictedAlphaOfMesh(s, 10) / std::sqrt(2.0);
-    EXPECT_NEAR(st.rms_height, 1.0, 1e-9);
-    // Finite patches (25.6 tau): the sample RMS normalisation lifts slopes by a few percent.
-    EXPECT_NEAR(st.rms_slope_x / predicted_slope, 1.0, 0.1) << s;
-    EXPECT_NEAR(st.rms_slope_y / predicted_slope, 1.0, 0.1) << s;
-    EXPECT_NEAR(st.correlation_at_tau, std::exp(-1.0), 0.05) << s;
+    EXPECT_NEAR(mean.rms_height, 1.0, 0.08) << s;
+    EXPECT_NEAR(0.5 * (mean.rms_slope_x + mean.rms_slope_y) / predicted_slope, 1.0, 0.03) << s;
+    EXPECT_NEAR(mean.correlation_at_tau, std::exp(-1.0), 0.06) << s;
   }
   EXPECT_NEAR(PredictedAlphaOfMesh(3.0, 1e6), 2.0 / 3.0, 1e-9);  // continuous limit: alpha = 2/s
 }
@@ -81,9 +89,9 @@ TEST(MonteCarlo, StatisticalAndExplicitAgreeOnTotalsWhereSmithHolds) {
 }
 
 // Sun 2008's test cases (n = 1.4 and 1/1.4, theta_i = 0 and 30, s = 6, 3, 1, 0.5) against explicit
-// surfaces. Measured with 100k rays (relative L1 of the transmitted lobes, MC noise ~0.03-0.06):
-// s = 6, 3: Walter 0.04-0.10, Sun 0.04-0.10; s = 1: Walter 0.14-0.68; s = 0.5: 0.35-0.92, worst
-// for light from the glass, where the models transmit 5-20 % and the surface 65 %.
+// surfaces. Measured with 100k rays (relative L1 of the transmitted lobes, MC noise ~0.02-0.06):
+// s = 6, 3: Walter and Sun 0.03-0.075; s = 1: Walter 0.13-0.68; s = 0.5: 0.35-0.92, worst for
+// light from the glass, where the models transmit 5-20 % and the surface 65 %.
 TEST(SingleScattering, AgreesWithExplicitSurfacesForSmoothAndFailsForRoughGlass) {
   std::printf("[ info ]  n      theta_i  s    L1 Walter  L1 Sun   L1 noise  T mc    T Walter\n");
   for (double n : {1.4, 1 / 1.4})

@@ -88,6 +88,18 @@ inline double ErfInv(double x) {
   return x < 0 ? -y : y;
 }
 
+// The distribution of visible normals (geometric seed eq. 3b) of any distribution d, seen from w
+// in either hemisphere (from below, the surface is seen from -w, as pbrt-v4 does):
+// D_vis(w, m) = G1(w, m) max(0, w'.m) D(m) / |w.n| with w' = w flipped to the upper hemisphere.
+template <typename Dist, typename T>
+T VisibleNormalDensity(const Dist& d, const Vec3<T>& w, const Vec3<T>& wm) {
+  const T cos_w = AbsCosTheta(w);
+  if (cos_w <= T(0)) return T(0);
+  const T wm_dot = CosTheta(w) < T(0) ? -Dot(w, wm) : Dot(w, wm);
+  if (wm_dot <= T(0)) return T(0);
+  return d.G1(w, wm) * wm_dot * d.D(wm) / cos_w;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Beckmann, eq. 25 (D), 26 (G1 exact), 27 (G1 rational), 28-29 (sampling). alpha_b > 0.
 template <typename T>
@@ -147,11 +159,7 @@ class BeckmannDistribution {
     return SampleVisibleUnflipped(CosTheta(w) < T(0) ? -w : w, u);
   }
   T PdfVisibleWm(const Vec3<T>& w, const Vec3<T>& wm) const {
-    const T cos_w = AbsCosTheta(w);
-    if (cos_w <= T(0)) return T(0);
-    const T wm_dot = CosTheta(w) < T(0) ? -Dot(w, wm) : Dot(w, wm);
-    if (wm_dot <= T(0)) return T(0);
-    return G1(w, wm) * wm_dot * D(wm) / cos_w;
+    return VisibleNormalDensity(*this, w, wm);
   }
 
   // Visible normals of the upper-hemisphere facets for any w with w.z > -1, NOT flipped: what a
@@ -303,11 +311,7 @@ class GgxDistribution {
     return Normalize(Vec3<T>(alpha_ * nh.x, alpha_ * nh.y, nh.z > T(0) ? nh.z : T(0)));
   }
   T PdfVisibleWm(const Vec3<T>& w, const Vec3<T>& wm) const {
-    const T cos_w = AbsCosTheta(w);
-    if (cos_w <= T(0)) return T(0);
-    const T wm_dot = CosTheta(w) < T(0) ? -Dot(w, wm) : Dot(w, wm);
-    if (wm_dot <= T(0)) return T(0);
-    return G1(w, wm) * wm_dot * D(wm) / cos_w;
+    return VisibleNormalDensity(*this, w, wm);
   }
 
   GgxDistribution Widened(const Vec3<T>& wi) const {

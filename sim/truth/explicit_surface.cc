@@ -10,6 +10,7 @@
 #include "fitting/optics/fresnel.h"
 #include "sim/truth/monte_carlo.h"
 #include "sim/truth/parallel.h"
+#include "sim/truth/scattering.h"
 
 namespace gonio::sim {
 namespace {
@@ -171,12 +172,10 @@ class Tracer {
       const double eta = above ? n_below_ / n_above_ : n_above_ / n_below_;
       const double F = optics::FresnelDielectric(cos_i, eta);
       double w_r = w * F, w_t = w * (1 - F);
-      const bool go_t = F < 1 && Survive(&w_t);
-      const bool go_r = Survive(&w_r);
+      const bool go_t = F < 1 && SurviveBranch(&w_t, o_.split_threshold, *rng_);
+      const bool go_r = SurviveBranch(&w_r, o_.split_threshold, *rng_);
       if (go_t) {
-        const double k = 1 - (1 - cos_i * cos_i) / (eta * eta);
-        const Vec3<double> dt = Normalize(d / eta + facing * (cos_i / eta - std::sqrt(k)));
-        Trace(x - facing * eps, dt, !above, w_t, depth + 1);
+        Trace(x - facing * eps, Refract(-d, facing, cos_i, eta), !above, w_t, depth + 1);
       }
       if (!go_r) return;
       d = d + facing * (2 * cos_i);
@@ -186,16 +185,6 @@ class Tracer {
   }
 
  private:
-  double U() { return std::uniform_real_distribution<double>(0, 1)(*rng_); }
-  bool Survive(double* w) {
-    if (*w <= 0) return false;
-    if (*w >= o_.split_threshold) return true;
-    if (U() * o_.split_threshold < *w) {
-      *w = o_.split_threshold;
-      return true;
-    }
-    return false;
-  }
 
   const HeightField& f_;
   double n_above_, n_below_;

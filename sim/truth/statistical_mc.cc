@@ -8,6 +8,7 @@
 #include "fitting/optics/fresnel.h"
 #include "sim/truth/monte_carlo.h"
 #include "sim/truth/parallel.h"
+#include "sim/truth/scattering.h"
 
 namespace gonio::sim {
 namespace {
@@ -58,13 +59,10 @@ class Walker {
       const double eta = outside ? n_below_ / n_above_ : n_above_ / n_below_;  // entered / left
       const double F = optics::FresnelDielectric(cos_i, eta);
       double w_r = w * F, w_t = w * (1 - F);
-      const bool go_t = F < 1 && Survive(&w_t);
-      const bool go_r = Survive(&w_r);
+      const bool go_t = F < 1 && SurviveBranch(&w_t, o_.split_threshold, *rng_);
+      const bool go_r = SurviveBranch(&w_r, o_.split_threshold, *rng_);
       if (go_t) {
-        // Refraction (Snell) through the facet wm.
-        const double k = 1 - (1 - cos_i * cos_i) / (eta * eta);
-        const Vec3<double> wt = Normalize(-wi / eta + wm * (cos_i / eta - std::sqrt(k)));
-        Walk(wt, c, !outside, w_t, depth + 1);
+        Walk(Refract(wi, wm, cos_i, eta), c, !outside, w_t, depth + 1);
       }
       if (!go_r) return;
       wr = wm * (2 * cos_i) - wi;  // reflection about the facet
@@ -74,18 +72,6 @@ class Walker {
 
  private:
   double U() { return std::uniform_real_distribution<double>(0, 1)(*rng_); }
-
-  // Russian roulette below the split threshold: survive with probability w / threshold at weight
-  // threshold, which keeps the expectation.
-  bool Survive(double* w) {
-    if (*w <= 0) return false;
-    if (*w >= o_.split_threshold) return true;
-    if (U() * o_.split_threshold < *w) {
-      *w = o_.split_threshold;
-      return true;
-    }
-    return false;
-  }
 
   // Smith's uncorrelated height sampling (Heitz et al. 2016, sampleHeight) in C1-space:
   // c = C1(h) of the current point; returns false if the ray leaves the surface, else sets c to

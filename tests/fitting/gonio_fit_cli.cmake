@@ -31,3 +31,13 @@ list(LENGTH lines n)
 if(NOT n EQUAL 717)
   message(FATAL_ERROR "fit_curves.csv has ${n} lines, expected 716 samples + header")
 endif()
+# The plot a user looks at: the script reads the directory and writes a PNG.
+execute_process(COMMAND /usr/bin/python3 ${PLOT} ${WORK}/fit ${WORK}/fit/fit.png
+                RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(NOT rc EQUAL 0 OR NOT EXISTS ${WORK}/fit/fit.png)
+  message(FATAL_ERROR "plot_fit.py failed (${rc}): ${out}${err}")
+endif()
+file(SIZE ${WORK}/fit/fit.png png_size)
+if(png_size LESS 20000)
+  message(FATAL_ERROR "fit.png is only ${png_size} bytes")
+endif()

@@ -185,7 +185,6 @@ class Tracer {
   }
 
  private:
-
   const HeightField& f_;
   double n_above_, n_below_;
   const MonteCarloOptions& o_;
@@ -233,12 +232,7 @@ BtdfTable ExplicitSurfaceMonteCarlo(double s, double n_above, double n_below, do
   std::vector<HeightField> fields;
   for (int r = 0; r < so.realisations; ++r)
     fields.push_back(HeightField::Gaussian(so.grid, dx, sigma, tau, o.seed * 7919 + r));
-  BtdfTable shape;
-  shape.theta_i_deg = theta_i_deg;
-  shape.n_above = n_above;
-  shape.n_below = n_below;
-  shape.n_theta = o.n_theta;
-  shape.n_phi = o.n_phi;
+  const BtdfTable shape = TableShape(n_above, n_below, theta_i_deg, o);
   const std::int64_t per_batch = o.rays / o.batches;
   const double ti = theta_i_deg * optics::kPi / 180;
   const Vec3<double> down{-std::sin(ti), 0, -std::cos(ti)};  // travel direction of the light

@@ -12,6 +12,18 @@
 
 namespace gonio::sim {
 
+// The empty table a Monte Carlo run fills: its geometry and bins.
+inline BtdfTable TableShape(double n_above, double n_below, double theta_i_deg,
+                            const MonteCarloOptions& o) {
+  BtdfTable shape;
+  shape.theta_i_deg = theta_i_deg;
+  shape.n_above = n_above;
+  shape.n_below = n_below;
+  shape.n_theta = o.n_theta;
+  shape.n_phi = o.n_phi;
+  return shape;
+}
+
 // body(batch, accumulator) traces one batch; batches are independent (own RNG stream), so the
 // result does not depend on the number of threads.
 template <typename Body>

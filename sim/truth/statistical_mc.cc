@@ -104,12 +104,7 @@ class Walker {
 BtdfTable StatisticalMonteCarlo(double s, double n_above, double n_below, double theta_i_deg,
                                 const MonteCarloOptions& o) {
   const auto t0 = std::chrono::steady_clock::now();
-  BtdfTable shape;
-  shape.theta_i_deg = theta_i_deg;
-  shape.n_above = n_above;
-  shape.n_below = n_below;
-  shape.n_theta = o.n_theta;
-  shape.n_phi = o.n_phi;
+  const BtdfTable shape = TableShape(n_above, n_below, theta_i_deg, o);
   const std::int64_t per_batch = o.rays / o.batches;
   const double ti = theta_i_deg * optics::kPi / 180;
   const Vec3<double> light{std::sin(ti), 0, std::cos(ti)};

@@ -1,0 +1,98 @@
+// One simulated rotation-stage driver at the register level: the Modbus holding registers of an
+// Oriental Motor AZ-style driver in "direct data operation" (REFERENCE.md section 4), the map
+// written out in full in docs/stage_register_map.md. One axis is one Modbus slave, as AZ drivers
+// on an RS-485 line. The protocol servers of issue #4 (libmodbus TCP and RTU) wrap it: after a
+// write they call OnWrite(); before a read they call Refresh(). No networking here.
+#pragma once
+
+#include <array>
+#include <cstdint>
+
+#include "sim/clock.h"
+#include "sim/stage/motion.h"
+
+namespace gonio::sim {
+
+// Register addresses (holding registers; 32-bit values are two registers, upper word first).
+namespace stage_reg {
+inline constexpr std::uint16_t kDirectData = 0x0058;       // 16 registers, see below
+inline constexpr std::uint16_t kDataNumber = 0x0058;       // 32-bit, unused by the simulator
+inline constexpr std::uint16_t kOperationType = 0x005A;    // 32-bit: 1 absolute, 2 incremental
+inline constexpr std::uint16_t kPosition = 0x005C;         // 32-bit signed, steps
+inline constexpr std::uint16_t kSpeed = 0x005E;            // 32-bit, steps/s
+inline constexpr std::uint16_t kAcceleration = 0x0060;     // 32-bit, steps/s^2
+inline constexpr std::uint16_t kDeceleration = 0x0062;     // 32-bit, steps/s^2
+inline constexpr std::uint16_t kCurrent = 0x0064;          // 32-bit, 0.1 %; stored, not modelled
+inline constexpr std::uint16_t kTrigger = 0x0066;          // 32-bit: 1 = start with all data
+inline constexpr std::uint16_t kInputCommand = 0x007C;     // 32-bit bit field, see kIn*
+inline constexpr std::uint16_t kOutputStatus = 0x007E;     // 32-bit bit field, see kOut*
+inline constexpr std::uint16_t kPresentAlarm = 0x0080;     // 32-bit alarm code, 0 = none
+inline constexpr std::uint16_t kCommandPosition = 0x00C6;  // 32-bit signed, steps
+inline constexpr std::uint16_t kAlarmReset = 0x0180;       // 32-bit: write 1 to reset the alarm
+inline constexpr std::uint16_t kCount = 0x0200;            // registers 0x0000..0x01FF exist
+
+// Input command bits (kInputCommand, lower word).
+inline constexpr std::uint32_t kInStart = 1u << 3;  // start with the stored direct data
+inline constexpr std::uint32_t kInHome = 1u << 4;   // ZHOME: return to position 0 (home)
+inline constexpr std::uint32_t kInStop = 1u << 5;   // decelerate to a stop
+inline constexpr std::uint32_t kInAlarmReset = 1u << 7;
+
+// Output status bits (kOutputStatus, lower word).
+inline constexpr std::uint32_t kOutHomeEnd = 1u << 4;  // homed since power-up, and at home
+inline constexpr std::uint32_t kOutReady = 1u << 5;    // accepts a new operation
+inline constexpr std::uint32_t kOutAlarm = 1u << 7;    // ALM-A: an alarm is present
+inline constexpr std::uint32_t kOutBusy = 1u << 8;     // SYS-BSY: an operation is under way
+inline constexpr std::uint32_t kOutMove = 1u << 13;    // the motor is moving
+inline constexpr std::uint32_t kOutInPos = 1u << 14;   // settled within the in-position band
+
+// Alarm codes (kPresentAlarm), after the AZ family's.
+inline constexpr std::uint32_t kAlarmSoftwareOvertravel = 0x67;
+inline constexpr std::uint32_t kAlarmBadData = 0x70;  // operation data out of range
+}  // namespace stage_reg
+
+struct AxisOptions {
+  // Software travel limits (steps), inclusive; a target outside raises 0x67 and does not move.
+  std::int32_t min_steps = -200'000, max_steps = 200'000;
+  double home_speed = 2000;  // steps/s for ZHOME
+  double home_acceleration = 20000;
+  double settle_s = 0.05;  // IN-POS after the profile ends plus this settling time
+};
+
+class SimulatedAxis {
+ public:
+  SimulatedAxis(const Clock& clock, AxisOptions options = {});
+
+  // Register access for the protocol layer. Addresses outside [0, kCount) are the caller's
+  // Modbus "illegal data address" and never reach here.
+  std::uint16_t Read(std::uint16_t address);  // refreshes the status first
+  // After a write of `count` registers at `address` (already stored by Write): acts on triggers,
+  // commands and alarm reset.
+  void Write(std::uint16_t address, const std::uint16_t* values, int count);
+
+  // Direct inspection for tests and the scene: position in steps at the clock's now.
+  double PositionSteps() const;
+  bool Moving() const;
+
+ private:
+  std::uint32_t Get32(std::uint16_t a) const {
+    return (std::uint32_t(regs_[a]) << 16) | regs_[a + 1];
+  }
+  void Set32(std::uint16_t a, std::uint32_t v) {
+    regs_[a] = static_cast<std::uint16_t>(v >> 16);
+    regs_[a + 1] = static_cast<std::uint16_t>(v & 0xFFFF);
+  }
+  void Refresh();
+  void StartDirectData();
+  void Home();
+  void Stop();
+  void Alarm(std::uint32_t code);
+
+  const Clock& clock_;
+  AxisOptions o_;
+  std::array<std::uint16_t, stage_reg::kCount> regs_{};
+  TrapezoidalMove move_;
+  bool homed_ = false, homing_ = false;
+  std::uint32_t alarm_ = 0;
+};
+
+}  // namespace gonio::sim

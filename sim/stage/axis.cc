@@ -19,6 +19,11 @@ std::uint16_t SimulatedAxis::Read(std::uint16_t address) {
   return regs_[address];
 }
 
+void SimulatedAxis::Snapshot(std::uint16_t (&out)[kCount]) {
+  Refresh();
+  for (std::uint16_t a = 0; a < kCount; ++a) out[a] = regs_[a];
+}
+
 void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, int count) {
   for (int k = 0; k < count; ++k) regs_[address + k] = values[k];
   auto touched = [&](std::uint16_t reg) { return address <= reg + 1 && reg < address + count; };

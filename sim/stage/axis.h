@@ -69,6 +69,9 @@ class SimulatedAxis {
   // commands and alarm reset.
   void Write(std::uint16_t address, const std::uint16_t* values, int count);
 
+  // All registers at once, refreshed (for a protocol server answering reads of any range).
+  void Snapshot(std::uint16_t (&out)[stage_reg::kCount]);
+
   // Direct inspection for tests and the scene: position in steps at the clock's now.
   double PositionSteps() const;
   bool Moving() const;

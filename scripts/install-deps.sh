@@ -9,7 +9,7 @@ packages=(
   build-essential cmake pkg-config git clang-format
   libgtest-dev libgmock-dev libbenchmark-dev
   # the hardware and science stack (DESIGN.md)
-  libaravis-dev aravis-tools libmodbus-dev libusb-1.0-0-dev
+  libaravis-dev aravis-tools libmodbus-dev libusb-1.0-0-dev mbpoll
   libopencv-dev libceres-dev libsqlite3-dev sqlite3
   # config parsing, JSON, CLI, logging, numerics
   libtomlplusplus-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libboost-dev

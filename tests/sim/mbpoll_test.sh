@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# A third-party Modbus client (mbpoll, Debian package) sees a real device: it reads the status of
+# gonio-sim's stage controller and moves an axis by writing the documented registers
+# (docs/stage_register_map.md). Usage: mbpoll_test.sh GONIO_SIM WORKDIR
+set -euo pipefail
+sim=$1 work=$2
+mkdir -p "$work"
+rm -f "$work/port"
+"$sim" --axes 2 --port 0 --port-file "$work/port" --speed 20 > "$work/sim.log" 2>&1 &
+pid=$!
+trap 'kill $pid 2>/dev/null || true' EXIT
+for _ in $(seq 100); do [[ -s "$work/port" ]] && break; sleep 0.05; done
+port=$(cat "$work/port")
+mb() { timeout 10 mbpoll -m tcp -0 -t 4:int -B -1 -o 2 -p "$port" "$@"; }
+
+# Status of unit 2 (0x007E = 126): READY (bit 5) set, MOVE (bit 13) clear.
+status=$(mb -a 2 -r 126 127.0.0.1 | sed -n 's/^\[126\]:[[:space:]]*//p')
+(( (status & 32) && !(status & 8192) )) || { echo "unexpected status $status"; exit 1; }
+
+# Direct data at 0x0058 = 88: absolute, 9000 steps, 4000 steps/s, 40000 steps/s^2, trigger.
+mb -a 2 -r 88 127.0.0.1 0 1 9000 4000 40000 40000 1000 1 > /dev/null
+sleep 0.4   # 2.35 s of simulated motion at x20
+pos=$(mb -a 2 -r 198 127.0.0.1 | sed -n 's/^\[198\]:[[:space:]]*//p')   # 0x00C6
+[[ "$pos" == 9000 ]] || { echo "command position $pos, expected 9000"; exit 1; }
+other=$(mb -a 1 -r 198 127.0.0.1 | sed -n 's/^\[198\]:[[:space:]]*//p')
+[[ "$other" == 0 ]] || { echo "unit 1 moved to $other"; exit 1; }
+
+kill -TERM $pid
+wait $pid
+grep -q "stopped" "$work/sim.log"
+echo "mbpoll moved unit 2 to $pos through gonio-sim on 127.0.0.1:$port"

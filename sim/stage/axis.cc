@@ -11,7 +11,6 @@ SimulatedAxis::SimulatedAxis(const Clock& clock, AxisOptions options)
   Refresh();
 }
 
-double SimulatedAxis::PositionSteps() const { return move_.PositionAt(clock_.Now()); }
 bool SimulatedAxis::Moving() const { return clock_.Now() < move_.EndTime(); }
 
 std::uint16_t SimulatedAxis::Read(std::uint16_t address) {

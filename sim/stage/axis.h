@@ -72,8 +72,8 @@ class SimulatedAxis {
   // All registers at once, refreshed (for a protocol server answering reads of any range).
   void Snapshot(std::uint16_t (&out)[stage_reg::kCount]);
 
-  // Direct inspection for tests and the scene: position in steps at the clock's now.
-  double PositionSteps() const;
+  // Whether a profile is still running at the clock's now (for tests; the scene of #4 will read
+  // positions through the registers or add an accessor when it needs one).
   bool Moving() const;
 
  private:

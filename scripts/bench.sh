@@ -15,7 +15,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene)
 # Debian's matplotlib/scipy are installed for the system interpreter (DESIGN.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -38,6 +38,9 @@ for part in "${parts[@]}"; do
       build-release/bench/truth_bench out/bench/truth.json
       $py bench/plot_truth.py out/bench/truth.json out/bench/truth_cost.png \
         out/bench/truth_failure.png ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth)" >&2; exit 2 ;;
+    scene)
+      build-release/bench/scene_rectangle | tee out/bench/scene_rectangle.md ;;
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene)" >&2
+       exit 2 ;;
   esac
 done

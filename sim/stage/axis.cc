@@ -11,19 +11,30 @@ SimulatedAxis::SimulatedAxis(const Clock& clock, AxisOptions options)
   Refresh();
 }
 
-bool SimulatedAxis::Moving() const { return clock_.Now() < move_.EndTime(); }
+bool SimulatedAxis::Moving() const {
+  std::lock_guard lock(mu_);
+  return clock_.Now() < move_.EndTime();
+}
+
+double SimulatedAxis::PositionSteps() const {
+  std::lock_guard lock(mu_);
+  return move_.PositionAt(clock_.Now());
+}
 
 std::uint16_t SimulatedAxis::Read(std::uint16_t address) {
+  std::lock_guard lock(mu_);
   Refresh();
   return regs_[address];
 }
 
 void SimulatedAxis::Snapshot(std::uint16_t (&out)[kCount]) {
+  std::lock_guard lock(mu_);
   Refresh();
   for (std::uint16_t a = 0; a < kCount; ++a) out[a] = regs_[a];
 }
 
 void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, int count) {
+  std::lock_guard lock(mu_);
   for (int k = 0; k < count; ++k) regs_[address + k] = values[k];
   auto touched = [&](std::uint16_t reg) { return address <= reg + 1 && reg < address + count; };
   if (touched(kAlarmReset) && Get32(kAlarmReset) == 1) {
@@ -56,7 +67,8 @@ void SimulatedAxis::Stop() {
 }
 
 void SimulatedAxis::Home() {
-  if (alarm_ || Moving()) return;  // not READY: ignored, as the real driver does
+  if (alarm_ || clock_.Now() < move_.EndTime())
+    return;  // not READY: ignored, as the real driver does
   const double now = clock_.Now();
   move_ = TrapezoidalMove(now, move_.PositionAt(now), 0, o_.home_speed, o_.home_acceleration,
                           o_.home_acceleration);
@@ -64,7 +76,7 @@ void SimulatedAxis::Home() {
 }
 
 void SimulatedAxis::StartDirectData() {
-  if (alarm_ || Moving()) return;  // not READY: ignored
+  if (alarm_ || clock_.Now() < move_.EndTime()) return;  // not READY: ignored
   const double now = clock_.Now();
   const double here = move_.PositionAt(now);
   const std::uint32_t type = Get32(kOperationType);

@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cstdint>
+#include <mutex>
 
 #include "sim/clock.h"
 #include "sim/stage/motion.h"
@@ -58,6 +59,8 @@ struct AxisOptions {
   double settle_s = 0.05;  // IN-POS after the profile ends plus this settling time
 };
 
+// Thread-safe: the protocol server's thread writes and reads registers while the camera's
+// firmware reads positions.
 class SimulatedAxis {
  public:
   SimulatedAxis(const Clock& clock, AxisOptions options = {});
@@ -72,9 +75,10 @@ class SimulatedAxis {
   // All registers at once, refreshed (for a protocol server answering reads of any range).
   void Snapshot(std::uint16_t (&out)[stage_reg::kCount]);
 
-  // Whether a profile is still running at the clock's now (for tests; the scene of #4 will read
-  // positions through the registers or add an accessor when it needs one).
+  // Whether a profile is still running at the clock's now.
   bool Moving() const;
+  // Where the motor is now (steps, fractional during a move): what the scene's camera sees.
+  double PositionSteps() const;
 
  private:
   std::uint32_t Get32(std::uint16_t a) const {
@@ -90,6 +94,7 @@ class SimulatedAxis {
   void Stop();
   void Alarm(std::uint32_t code);
 
+  mutable std::mutex mu_;
   const Clock& clock_;
   AxisOptions o_;
   std::array<std::uint16_t, stage_reg::kCount> regs_{};

@@ -1,16 +1,22 @@
 #include "sim/truth/ground_truth.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <sstream>
+
+#include "fitting/optics/microfacet.h"
 
 namespace gonio::sim {
 
 double TabulatedTruth::BtdfCos(const optics::Vec3<double>& l, const optics::Vec3<double>& v) const {
   const double ti = t_.theta_i_deg * optics::kPi / 180;
-  if (std::abs(l.z - std::cos(ti)) > 1e-9 || std::abs(l.x - std::sin(ti)) > 1e-9) {
-    std::fprintf(stderr, "gonio: bug: TabulatedTruth '%s' holds theta_i %g only\n", name_.c_str(),
-                 t_.theta_i_deg);
+  const double cos_to_own = l.z * std::cos(ti) + l.x * std::sin(ti);
+  if (cos_to_own < std::cos(kTableLightToleranceDeg * optics::kPi / 180)) {
+    std::fprintf(stderr, "gonio: bug: TabulatedTruth '%s' holds theta_i %g only (asked %g)\n",
+                 name_.c_str(), t_.theta_i_deg,
+                 std::acos(std::clamp(l.z, -1.0, 1.0)) * 180 / optics::kPi);
     std::abort();
   }
   const int k = t_.BinOf(v);
@@ -43,6 +49,29 @@ GroundTruthChoice ChooseGroundTruth(double s, double n_above, double n_below, do
   }
   c.reason = os.str();
   return c;
+}
+
+std::shared_ptr<GroundTruth> MicrofacetTruth(const std::string& family, double alpha, double eta) {
+  char label[96];
+  std::snprintf(label, sizeof label, "%s alpha=%.4g eta=%.4g", family.c_str(), alpha, eta);
+  if (family == "beckmann") {
+    const optics::RoughDielectricBsdf<optics::BeckmannDistribution<double>> bsdf(
+        optics::BeckmannDistribution<double>(alpha), eta);
+    return std::make_shared<AnalyticTruth>(
+        label, [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
+          return bsdf.Btdf(l, v);
+        });
+  }
+  if (family == "ggx") {
+    const optics::RoughDielectricBsdf<optics::GgxDistribution<double>> bsdf(
+        optics::GgxDistribution<double>(alpha), eta);
+    return std::make_shared<AnalyticTruth>(
+        label, [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
+          return bsdf.Btdf(l, v);
+        });
+  }
+  std::fprintf(stderr, "MicrofacetTruth: unknown family '%s'\n", family.c_str());
+  std::abort();
 }
 
 }  // namespace gonio::sim

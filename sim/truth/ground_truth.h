@@ -35,8 +35,11 @@ class AnalyticTruth final : public GroundTruth {
   BtdfFunction f_;
 };
 
-// A Monte Carlo table, for its own incidence only: other light directions are a caller's bug
-// (a table is per incidence; build one per incidence of the plan) and abort.
+// A Monte Carlo table, for its own incidence only. The scene's pixels see light directions within
+// a degree of the nominal one (the source is 610 mm away): those read the table at its own
+// incidence. Light more than kTableLightToleranceDeg away is a caller's bug (a table is per
+// incidence; build one per incidence of the plan) and aborts.
+inline constexpr double kTableLightToleranceDeg = 2.0;
 class TabulatedTruth final : public GroundTruth {
  public:
   TabulatedTruth(std::string name, BtdfTable table)
@@ -49,6 +52,12 @@ class TabulatedTruth final : public GroundTruth {
   std::string name_;
   BtdfTable t_;
 };
+
+// A microfacet model of the optics library (Walter 2007 eq. 21), the fitter's own formulas: the
+// cheapest truth, exact for what the fitter assumes. alpha is the distribution's width, eta the
+// glass index relative to the air. Family: "beckmann" or "ggx"; others abort (a caller's bug: the
+// config parser validates names).
+std::shared_ptr<GroundTruth> MicrofacetTruth(const std::string& family, double alpha, double eta);
 
 enum class TruthKind { kAnalytic, kStatisticalMonteCarlo, kExplicitSurfaces };
 

@@ -1,0 +1,239 @@
+#include "sim/camera/camera.h"
+
+#include <arv.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+
+namespace gonio::sim {
+
+namespace {
+
+// Registers of Aravis's fake camera (arvfakecamera.h) that the firmware uses.
+constexpr std::uint32_t kFakeTriggerMode = ARV_FAKE_CAMERA_REGISTER_TRIGGER_MODE;
+constexpr std::uint32_t kFakeTriggerSource = ARV_FAKE_CAMERA_REGISTER_TRIGGER_SOURCE;
+constexpr std::uint32_t kFakeTriggerSoftware = ARV_FAKE_CAMERA_REGISTER_TRIGGER_SOFTWARE;
+constexpr std::uint32_t kFakeAcquisition = ARV_FAKE_CAMERA_REGISTER_ACQUISITION;
+constexpr std::uint32_t kFakeAcquisitionMode = ARV_FAKE_CAMERA_REGISTER_ACQUISITION_MODE;
+
+bool SameAngles(const StageAngles& a, const StageAngles& b) {
+  return a.sample_deg == b.sample_deg && a.arm_deg == b.arm_deg && a.azimuth_deg == b.azimuth_deg;
+}
+
+void WriteString(ArvFakeCamera* fake, std::uint32_t address, std::size_t size,
+                 const std::string& s) {
+  std::string padded = s.substr(0, size - 1);
+  padded.resize(size, '\0');
+  arv_fake_camera_write_memory(fake, address, static_cast<guint32>(size), padded.data());
+}
+
+}  // namespace
+
+std::string DefaultCameraGenicamPath() { return GONIO_SIM_CAMERA_XML; }
+
+SimulatedCamera::SimulatedCamera(const Clock& clock, const Scene& scene, AnglesSource angles,
+                                 const Lamp& lamp, CameraOptions options)
+    : clock_(clock),
+      scene_(scene),
+      angles_(std::move(angles)),
+      lamp_(lamp),
+      o_(std::move(options)),
+      sensor_(o_.sensor.sensor_width, o_.sensor.sensor_height, o_.sensor_options, o_.seed),
+      cooler_(o_.cooler, clock.Now()),
+      rng_(o_.seed) {}
+
+Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(const Clock& clock,
+                                                                    const Scene& scene,
+                                                                    AnglesSource angles,
+                                                                    const Lamp& lamp,
+                                                                    CameraOptions options) {
+  if (options.address.rfind("127.", 0) != 0) {
+    return Error{ErrorCode::kInvalidArgument,
+                 "simulated camera address " + options.address +
+                     " is not a loopback address; the simulator serves on 127.0.0.1 only"};
+  }
+  if (!std::filesystem::exists(options.genicam_path)) {
+    return Error{ErrorCode::kIo, "GenICam file not found: " + options.genicam_path};
+  }
+  std::unique_ptr<SimulatedCamera> cam(
+      new SimulatedCamera(clock, scene, std::move(angles), lamp, std::move(options)));
+  const CameraOptions& o = cam->o_;
+  cam->gv_ = arv_gv_fake_camera_new_full(o.address.c_str(), o.serial.c_str(),
+                                         o.genicam_path.c_str());
+  if (cam->gv_ == nullptr || !arv_gv_fake_camera_is_running(cam->gv_)) {
+    return Error{ErrorCode::kIo, "cannot serve GigE Vision on " + o.address +
+                                     ":3956 (is another simulated camera or "
+                                     "arv-fake-gv-camera-0.8 running?)"};
+  }
+  ArvFakeCamera* fake = arv_gv_fake_camera_get_fake_camera(cam->gv_);
+  cam->fake_ = fake;
+  WriteString(fake, 0x48, 32, "gonio");
+  WriteString(fake, 0x68, 32, "CooledCCD (simulated)");
+  WriteString(fake, 0x88, 32, "gonio-sim 1");
+  const ImageRegion& s = o.sensor;
+  cam->SetReg(ARV_FAKE_CAMERA_REGISTER_SENSOR_WIDTH, s.sensor_width);
+  cam->SetReg(ARV_FAKE_CAMERA_REGISTER_SENSOR_HEIGHT, s.sensor_height);
+  cam->SetReg(ARV_FAKE_CAMERA_REGISTER_WIDTH, s.sensor_width);
+  cam->SetReg(ARV_FAKE_CAMERA_REGISTER_HEIGHT, s.sensor_height);
+  cam->SetReg(ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT, ARV_PIXEL_FORMAT_MONO_16);
+  cam->SetReg(ARV_FAKE_CAMERA_REGISTER_EXPOSURE_TIME_US, 100000);
+  cam->SetReg(ARV_FAKE_CAMERA_REGISTER_GAIN_RAW, 0);
+  // The fake camera itself always waits for a software trigger: the firmware gives it one when
+  // a frame is ready, whatever the client's TriggerMode. It looks for one every millisecond.
+  cam->SetReg(kFakeTriggerMode, 1);
+  cam->SetReg(kFakeTriggerSource, 1);
+  arv_fake_camera_set_trigger_frequency(fake, 1000.0);
+  cam->SetReg(camera_reg::kTriggerMode, 0);
+  cam->SetReg(camera_reg::kBlackLevel, static_cast<std::uint32_t>(o.sensor_options.bias_adu));
+  cam->SetReg(camera_reg::kSetpoint, static_cast<std::uint32_t>(-20000));
+  cam->Step(clock.Now());
+  arv_fake_camera_set_fill_pattern(fake, &SimulatedCamera::Fill, cam.get());
+  cam->firmware_ = std::thread([c = cam.get()] { c->Firmware(); });
+  return cam;
+}
+
+SimulatedCamera::~SimulatedCamera() {
+  if (gv_ != nullptr) g_object_unref(gv_);  // joins Aravis's thread: no Fill after this
+  stop_ = true;
+  if (firmware_.joinable()) firmware_.join();
+}
+
+std::uint32_t SimulatedCamera::Reg(std::uint32_t address) const {
+  guint32 v = 0;
+  arv_fake_camera_read_register(fake_, address, &v);
+  return v;
+}
+
+void SimulatedCamera::SetReg(std::uint32_t address, std::uint32_t value) {
+  arv_fake_camera_write_register(fake_, address, value);
+}
+
+void SimulatedCamera::DropFrames(int n) {
+  std::lock_guard lock(mu_);
+  drop_frames_ += n;
+}
+
+void SimulatedCamera::FailCooler(bool failed) {
+  std::lock_guard lock(mu_);
+  cooler_.SetFailed(failed, clock_.Now());
+}
+
+double SimulatedCamera::SensorTemperature() const {
+  std::lock_guard lock(mu_);
+  return cooler_.Temperature(clock_.Now());
+}
+
+void SimulatedCamera::Firmware() {
+  while (!stop_) {
+    Step(clock_.Now());
+    std::this_thread::sleep_for(std::chrono::duration<double>(o_.poll_s));
+  }
+}
+
+ImageRegion SimulatedCamera::CurrentRegion() const {
+  ImageRegion r = o_.sensor;
+  r.offset_x = static_cast<int>(Reg(ARV_FAKE_CAMERA_REGISTER_X_OFFSET));
+  r.offset_y = static_cast<int>(Reg(ARV_FAKE_CAMERA_REGISTER_Y_OFFSET));
+  r.width = static_cast<int>(Reg(ARV_FAKE_CAMERA_REGISTER_WIDTH));
+  r.height = static_cast<int>(Reg(ARV_FAKE_CAMERA_REGISTER_HEIGHT));
+  r.binning_h = std::max(1, static_cast<int>(Reg(ARV_FAKE_CAMERA_REGISTER_BINNING_HORIZONTAL)));
+  r.binning_v = std::max(1, static_cast<int>(Reg(ARV_FAKE_CAMERA_REGISTER_BINNING_VERTICAL)));
+  return r;
+}
+
+const cv::Mat1d& SimulatedCamera::Rates(const StageAngles& a, const ImageRegion& region) {
+  // One geometry is exposed many times (frames, dark-free repeats, auto-ranging): render once.
+  if (!cache_ || !SameAngles(cache_->angles, a) || !(cache_->region == region)) {
+    cache_ = CacheEntry{a, region, scene_.Render(a, region)};
+  }
+  return cache_->rates;
+}
+
+cv::Mat1w SimulatedCamera::Shoot(const StageAngles& a0, const StageAngles& a1, double t0,
+                                 double exposure_s) {
+  const ImageRegion region = CurrentRegion();
+  cv::Mat1d rates = Rates(a0, region).clone();
+  if (!SameAngles(a0, a1)) rates = 0.5 * (rates + Rates(a1, region));  // moved while exposing
+  rates *= lamp_.MeanRelative(t0, t0 + exposure_s);
+  ExposureSettings s;
+  s.exposure_s = exposure_s;
+  s.gain_db = Reg(ARV_FAKE_CAMERA_REGISTER_GAIN_RAW) / 100.0;
+  s.black_level_adu = Reg(camera_reg::kBlackLevel);
+  s.temperature_c = cooler_.Temperature(t0 + 0.5 * exposure_s);
+  s.depth = Reg(ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT) == ARV_PIXEL_FORMAT_MONO_12 ? PixelDepth::k12
+                                                                                  : PixelDepth::k16;
+  return sensor_.Expose(rates, region.offset_x, region.offset_y, region.binning_h,
+                        region.binning_v, s, rng_);
+}
+
+void SimulatedCamera::Step(double now) {
+  using namespace camera_reg;
+  const StageAngles angles = angles_ ? angles_() : StageAngles{};
+  std::lock_guard lock(mu_);
+  // Cooler: mode on write, setpoint on Activate (as Goldeye-style cameras apply it).
+  const std::uint32_t mode = Reg(kCoolerMode);
+  if (mode != cooler_mode_) {
+    cooler_mode_ = mode;
+    cooler_.SetEnabled(mode == 1, now);
+  }
+  if (Reg(kSetpointActivate) != 0) {
+    SetReg(kSetpointActivate, 0);
+    cooler_.SetSetpoint(static_cast<std::int32_t>(Reg(kSetpoint)) / 1000.0, now);
+  }
+  SetReg(kDeviceTemperature,
+         static_cast<std::uint32_t>(static_cast<std::int32_t>(
+             std::lround(cooler_.Temperature(now) * 1000))));
+  SetReg(kCoolingPower, static_cast<std::uint32_t>(std::lround(cooler_.PowerPercent(now) * 1000)));
+
+  if (Reg(kFakeAcquisition) == 0) {  // stopped: forget exposures in progress and stale triggers
+    exposing_ = false;
+    ready_frame_.reset();
+    SetReg(kTriggerSoftware, 0);
+    return;
+  }
+  if (ready_frame_) return;  // waiting for Aravis to send the last one
+  if (!exposing_ && (Reg(kTriggerMode) == 0 || Reg(kTriggerSoftware) != 0)) {
+    SetReg(kTriggerSoftware, 0);
+    exposing_ = true;
+    exposure_start_ = now;
+    exposure_s_ = Reg(ARV_FAKE_CAMERA_REGISTER_EXPOSURE_TIME_US) * 1e-6;
+    angles_at_start_ = angles;
+  }
+  if (!exposing_) return;
+  const ImageRegion region = CurrentRegion();
+  const double readout_s = sensor_.ReadoutSeconds(region.width * region.height);
+  if (now < exposure_start_ + exposure_s_ + readout_s) return;
+  exposing_ = false;
+  if (drop_frames_ > 0) {  // the fault plan: this frame is lost
+    --drop_frames_;
+    return;
+  }
+  ready_frame_ = Shoot(angles_at_start_, angles, exposure_start_, exposure_s_);
+  SetReg(kFakeTriggerSoftware, 1);
+}
+
+void SimulatedCamera::Fill(_ArvBuffer* buffer, void* self, std::uint32_t, std::uint32_t,
+                           std::uint32_t) {
+  auto* cam = static_cast<SimulatedCamera*>(self);
+  std::size_t size = 0;
+  auto* data = static_cast<std::uint8_t*>(const_cast<void*>(arv_buffer_get_data(buffer, &size)));
+  const int w = arv_buffer_get_image_width(buffer), h = arv_buffer_get_image_height(buffer);
+  std::optional<cv::Mat1w> frame;
+  {
+    std::lock_guard lock(cam->mu_);
+    frame.swap(cam->ready_frame_);
+    if (frame && cam->Reg(kFakeAcquisitionMode) == 2) cam->SetReg(kFakeAcquisition, 0);
+  }
+  if (data == nullptr || w <= 0 || h <= 0) return;
+  // Aravis checked the buffer against the payload (w * h * 2 bytes) before calling.
+  if (!frame || frame->cols != w || frame->rows != h) {
+    std::memset(data, 0, static_cast<std::size_t>(w) * h * 2);  // region changed mid-exposure
+  } else {
+    for (int j = 0; j < h; ++j) std::memcpy(data + std::size_t(j) * w * 2, frame->ptr(j), w * 2);
+  }
+  ++cam->frames_sent_;
+}
+
+}  // namespace gonio::sim

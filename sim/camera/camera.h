@@ -1,0 +1,134 @@
+// The simulated cooled CCD as a real GenICam device: Aravis's fake GigE Vision camera serves the
+// project's own GenICam XML (gonio-cooled-ccd.xml) on 127.0.0.1, and a firmware thread plays the
+// camera behind its registers - the cooler, exposure timing and the scene's frames.
+//
+// Timing (as a CCD): an exposure starts on TriggerSoftware (TriggerMode On) or right after the
+// previous readout (Off); the frame leaves after exposure + readout of simulated time; the stage
+// angles at the start and end of the exposure decide what it sees (their mean image, if the
+// stages moved). The firmware renders the frame before releasing it, so Aravis's single protocol
+// thread never blocks on rendering and keeps answering GVCP.
+//
+// Registers (docs/camera_features.md): Aravis's fake camera implements those below 0x400; the
+// firmware owns 0x400 and up. Network rules (shared/DESIGN.md): loopback only, GVCP port 3956, so
+// one GigE camera per machine (tests take the CTest RESOURCE_LOCK "gvcp").
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <random>
+#include <string>
+#include <thread>
+
+#include <opencv2/core.hpp>
+
+#include "common/result.h"
+#include "sim/camera/cooler.h"
+#include "sim/camera/sensor.h"
+#include "sim/clock.h"
+#include "sim/scene/bench.h"
+#include "sim/scene/lamp.h"
+
+struct _ArvGvFakeCamera;
+struct _ArvFakeCamera;
+struct _ArvBuffer;
+
+namespace gonio::sim {
+
+namespace camera_reg {  // the firmware's registers (32-bit, big-endian)
+inline constexpr std::uint32_t kDeviceTemperature = 0x400;  // signed, milli-deg C (RO)
+inline constexpr std::uint32_t kTriggerMode = 0x404;        // 0 free running, 1 triggered
+inline constexpr std::uint32_t kTriggerSoftware = 0x408;    // write 1: start an exposure
+inline constexpr std::uint32_t kCoolerMode = 0x40c;         // 0 off, 1 on
+inline constexpr std::uint32_t kSetpoint = 0x410;           // signed, milli-deg C
+inline constexpr std::uint32_t kSetpointActivate = 0x414;   // write 1: apply kSetpoint
+inline constexpr std::uint32_t kCoolingPower = 0x418;       // milli-percent (RO)
+inline constexpr std::uint32_t kBlackLevel = 0x41c;         // ADU
+}  // namespace camera_reg
+
+// The genicam file installed beside the sources (compiled-in path; overridable).
+std::string DefaultCameraGenicamPath();
+
+struct CameraOptions {
+  std::string serial = "GONIO-CCD-1";
+  std::string genicam_path = DefaultCameraGenicamPath();
+  std::string address = "127.0.0.1";  // GigE only; must be a loopback address
+  ImageRegion sensor;                 // sensor size and object-side pixel pitch
+  SensorOptions sensor_options;
+  CoolerOptions cooler;
+  std::uint64_t seed = 1;
+  double poll_s = 0.001;  // real time between firmware steps
+};
+
+// What the stages show the camera: the stage angles now.
+using AnglesSource = std::function<StageAngles()>;
+
+class SimulatedCamera {
+ public:
+  // Starts the GigE Vision camera on options.address (GVCP port 3956). Errors: the address is not
+  // loopback (InvalidArgument), the genicam file is missing, or the port is taken (Io). The
+  // scene, the clock and the lamp must outlive the camera.
+  static Result<std::unique_ptr<SimulatedCamera>> StartGigE(const Clock& clock, const Scene& scene,
+                                                            AnglesSource angles, const Lamp& lamp,
+                                                            CameraOptions options = {});
+  ~SimulatedCamera();  // stops the protocol thread, then the firmware
+  SimulatedCamera(const SimulatedCamera&) = delete;
+  SimulatedCamera& operator=(const SimulatedCamera&) = delete;
+
+  // Fault injection (the fault plan): the next n exposures never leave the camera (the client
+  // sees a frame timeout); the cooler stops cooling (the sensor drifts to ambient).
+  void DropFrames(int n);
+  void FailCooler(bool failed);
+
+  double SensorTemperature() const;
+  long frames_sent() const { return frames_sent_.load(); }
+  const Sensor& sensor() const { return sensor_; }
+
+ private:
+  SimulatedCamera(const Clock& clock, const Scene& scene, AnglesSource angles, const Lamp& lamp,
+                  CameraOptions options);
+  static void Fill(_ArvBuffer* buffer, void* self, std::uint32_t exposure_us, std::uint32_t gain,
+                   std::uint32_t pixel_format);
+  void Firmware();
+  void Step(double now);
+  std::uint32_t Reg(std::uint32_t address) const;
+  void SetReg(std::uint32_t address, std::uint32_t value);
+  ImageRegion CurrentRegion() const;
+  cv::Mat1w Shoot(const StageAngles& a0, const StageAngles& a1, double t0, double exposure_s);
+  const cv::Mat1d& Rates(const StageAngles& a, const ImageRegion& region);
+
+  const Clock& clock_;
+  const Scene& scene_;
+  AnglesSource angles_;
+  const Lamp& lamp_;
+  CameraOptions o_;
+  Sensor sensor_;
+
+  _ArvGvFakeCamera* gv_ = nullptr;
+  _ArvFakeCamera* fake_ = nullptr;  // owned by gv_
+
+  mutable std::mutex mu_;  // guards everything below
+  Cooler cooler_;
+  std::mt19937_64 rng_;
+  std::uint32_t cooler_mode_ = 0;
+  bool exposing_ = false;
+  double exposure_start_ = 0, exposure_s_ = 0;
+  StageAngles angles_at_start_;
+  std::optional<cv::Mat1w> ready_frame_;
+  int drop_frames_ = 0;
+  struct CacheEntry {
+    StageAngles angles;
+    ImageRegion region;
+    cv::Mat1d rates;
+  };
+  std::optional<CacheEntry> cache_;
+
+  std::atomic<long> frames_sent_{0};
+  std::atomic<bool> stop_{false};
+  std::thread firmware_;
+};
+
+}  // namespace gonio::sim

@@ -1,0 +1,159 @@
+#include "sim/scene/bench.h"
+
+#include <cmath>
+#include <numbers>
+
+#include <opencv2/core/utility.hpp>
+
+#include "fitting/optics/fresnel.h"
+#include "sim/truth/scattering.h"
+
+namespace gonio::sim {
+
+using V = optics::Vec3<double>;
+
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180;
+
+// Lab-fixed directions expressed in the sample frame before the azimuth turn.
+V InPlane(double polar_rad) { return {std::sin(polar_rad), 0, std::cos(polar_rad)}; }
+
+// The sample turned by phi about its normal sees lab-fixed vectors turned by -phi.
+V AzimuthTurn(const V& w, double phi_rad) {
+  const double c = std::cos(phi_rad), s = std::sin(phi_rad);
+  return {c * w.x + s * w.y, -s * w.x + c * w.y, w.z};
+}
+
+struct Frame {
+  V source_dir, camera_dir;  // before the azimuth turn
+  double phi = 0;
+};
+
+Frame FrameOf(const StageAngles& a) {
+  const double s = a.sample_deg * kDeg;
+  return {InPlane(s), InPlane(s - a.arm_deg * kDeg), a.azimuth_deg * kDeg};
+}
+
+}  // namespace
+
+NominalGeometry Nominal(const BenchGeometry& bench, const StageAngles& angles) {
+  const Frame f = FrameOf(angles);
+  NominalGeometry g;
+  g.l = AzimuthTurn(f.source_dir, f.phi);
+  g.v = AzimuthTurn(f.camera_dir, f.phi);
+  g.transmission = g.v.z < 0;
+  const double separation = std::acos(std::clamp(Dot(f.source_dir, f.camera_dir), -1.0, 1.0));
+  g.arm_shadows_source = separation < bench.arm_shadow_half_angle_deg * kDeg;
+  return g;
+}
+
+StageAngles StageAnglesFor(double theta_l_deg, double theta_v_deg, double azimuth_deg) {
+  double arm = std::fmod(theta_l_deg + theta_v_deg + 180, 360.0);
+  if (arm < 0) arm += 360;
+  return {theta_l_deg, arm, azimuth_deg};
+}
+
+Scene::Scene(BenchGeometry bench, std::shared_ptr<const GroundTruth> truth, SceneOptions options)
+    : bench_(bench), truth_(std::move(truth)), o_(options) {}
+
+std::optional<PixelRay> Scene::Trace(const StageAngles& angles, double x_mm, double y_mm) const {
+  const Frame f = FrameOf(angles);
+  const V c = f.camera_dir;
+  if (c.z >= 0) return std::nullopt;  // the camera looks at the rough side: reflection
+  const V origin{0, 0, -bench_.CentreOffsetMm()};
+  const V up{0, 1, 0};
+  const V across{c.z, 0, -c.x};  // Cross(up, c): horizontal, facing the camera
+  const V pinhole = origin + c * bench_.camera_distance_mm;
+  const V r = Normalize(origin + across * x_mm + up * y_mm - pinhole);
+
+  // Enter the sphere (first intersection from the camera side).
+  const double R = bench_.sphere_radius_mm;
+  const V oc = pinhole - origin;
+  const double b = Dot(oc, r);
+  const double disc = b * b - (LengthSquared(oc) - R * R);
+  if (disc <= 0) return std::nullopt;
+  const V on_sphere = pinhole + r * (-b - std::sqrt(disc));
+  if (on_sphere.z > -bench_.sample_thickness_mm) return std::nullopt;  // beside the lens
+  const V n_s = (on_sphere - origin) / R;  // outward
+  const double cos_i = Dot(-r, n_s);
+  if (cos_i <= 0) return std::nullopt;
+  const double t_exit = 1 - optics::FresnelDielectric(cos_i, bench_.eta);
+  const double t_pole = 1 - optics::FresnelDielectric(1.0, bench_.eta);
+  const V in_glass = Refract(-r, n_s, cos_i, bench_.eta);
+  if (in_glass.z <= 0) return std::nullopt;
+
+  // Through the glass to the rough surface z = 0.
+  const V hit = on_sphere + in_glass * (-on_sphere.z / in_glass.z);
+  if (std::abs(hit.x) > bench_.plate_half_width_mm || std::abs(hit.y) > bench_.plate_half_width_mm)
+    return std::nullopt;
+  const V source = origin + f.source_dir * bench_.source_distance_mm;
+  const V to_source = source - hit;
+  const double dist = Length(to_source);
+  PixelRay ray;
+  ray.l = AzimuthTurn(to_source / dist, f.phi);
+  ray.v = AzimuthTurn(-in_glass, f.phi);
+  ray.hit_mm = AzimuthTurn(hit, f.phi);
+  // Radiance leaves the sphere scaled by the Fresnel transmittance relative to the pole's; the
+  // irradiance at the hit point falls with the square of its distance from the source.
+  const double inv_sq = bench_.source_distance_mm / dist;
+  ray.exit_transmittance = t_exit / t_pole * inv_sq * inv_sq;
+  return ray;
+}
+
+bool Scene::NeedsApertures(const StageAngles& angles) const {
+  const NominalGeometry g = Nominal(bench_, angles);
+  if (!g.transmission || g.l.z <= 0) return false;
+  return ApertureMatters(*truth_, g.l, g.v, o_.apertures, o_.aperture_tolerance).matters;
+}
+
+double Scene::RateAt(const StageAngles& angles, double x_mm, double y_mm, bool shadowed,
+                     bool averaged) const {
+  const auto ray = shadowed ? std::nullopt : Trace(angles, x_mm, y_mm);
+  if (!ray) {
+    return std::hypot(x_mm, y_mm) < bench_.sphere_radius_mm ? o_.stray_lens_e_per_s
+                                                            : o_.stray_background_e_per_s;
+  }
+  double signal = 0;
+  if (ray->l.z > 0) {
+    const double f = averaged ? ApertureAveragedBtdfCos(*truth_, ray->l, ray->v, o_.apertures, 6)
+                              : truth_->BtdfCos(ray->l, ray->v);
+    signal = o_.electrons_per_s_per_unit * f * ray->exit_transmittance;
+  }
+  return signal + o_.stray_lens_e_per_s;
+}
+
+double Scene::PixelRate(const StageAngles& angles, const ImageRegion& region, int col,
+                        int row) const {
+  const bool shadowed = Nominal(bench_, angles).arm_shadows_source;
+  const double x = (col + 0.5 - region.sensor_width / 2.0) * region.mm_per_pixel;
+  const double y = (row + 0.5 - region.sensor_height / 2.0) * region.mm_per_pixel;
+  return RateAt(angles, x, y, shadowed, !shadowed && NeedsApertures(angles));
+}
+
+cv::Mat1d Scene::Render(const StageAngles& angles, const ImageRegion& region) const {
+  cv::Mat1d out(region.height, region.width, 0.0);
+  const bool shadowed = Nominal(bench_, angles).arm_shadows_source;
+  const bool averaged = !shadowed && NeedsApertures(angles);
+  cv::parallel_for_(cv::Range(0, region.height), [&](const cv::Range& rows) {
+    for (int j = rows.start; j < rows.end; ++j) {
+      for (int i = 0; i < region.width; ++i) {
+        double sum = 0;
+        for (int dj = 0; dj < region.binning_v; ++dj) {
+          for (int di = 0; di < region.binning_h; ++di) {
+            const int col = region.offset_x + i * region.binning_h + di;
+            const int row = region.offset_y + j * region.binning_v + dj;
+            if (col >= region.sensor_width || row >= region.sensor_height) continue;
+            const double x = (col + 0.5 - region.sensor_width / 2.0) * region.mm_per_pixel;
+            const double y = (row + 0.5 - region.sensor_height / 2.0) * region.mm_per_pixel;
+            sum += RateAt(angles, x, y, shadowed, averaged);
+          }
+        }
+        out(j, i) = sum;
+      }
+    }
+  });
+  return out;
+}
+
+}  // namespace gonio::sim

@@ -36,8 +36,9 @@ int main() {
     double alpha;
   };
   const Sample samples[] = {{"ground", 0.344}, {"antiglare", 0.023}};
-  std::printf("| sample | thickness mm | theta_i | theta_v - Snell | 3x10 mm | 10x3 mm | 1x3 mm |"
-              " 0.3x0.3 mm |\n|---|---|---|---|---|---|---|---|\n");
+  std::printf(
+      "| sample | thickness mm | theta_i | theta_v - Snell | 3x10 mm | 10x3 mm | 1x3 mm |"
+      " 0.3x0.3 mm |\n|---|---|---|---|---|---|---|---|\n");
   for (const Sample& s : samples) {
     for (double thickness : {6.0, 3.0, 9.0}) {
       BenchGeometry b;
@@ -63,6 +64,7 @@ int main() {
   const auto t0 = std::chrono::steady_clock::now();
   const int n = 5;
   for (int k = 0; k < n; ++k) scene.Render(StageAnglesFor(30, -10 + k), full);
-  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / n;
+  const double ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / n;
   std::printf("\nrender 512x512 ground glass: %.1f ms per geometry\n", ms);
 }

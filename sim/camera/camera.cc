@@ -60,8 +60,8 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(const Clock&
   std::unique_ptr<SimulatedCamera> cam(
       new SimulatedCamera(clock, scene, std::move(angles), lamp, std::move(options)));
   const CameraOptions& o = cam->o_;
-  cam->gv_ = arv_gv_fake_camera_new_full(o.address.c_str(), o.serial.c_str(),
-                                         o.genicam_path.c_str());
+  cam->gv_ =
+      arv_gv_fake_camera_new_full(o.address.c_str(), o.serial.c_str(), o.genicam_path.c_str());
   if (cam->gv_ == nullptr || !arv_gv_fake_camera_is_running(cam->gv_)) {
     return Error{ErrorCode::kIo, "cannot serve GigE Vision on " + o.address +
                                      ":3956 (is another simulated camera or "
@@ -162,10 +162,11 @@ cv::Mat1w SimulatedCamera::Shoot(const StageAngles& a0, const StageAngles& a1, d
   s.gain_db = Reg(ARV_FAKE_CAMERA_REGISTER_GAIN_RAW) / 100.0;
   s.black_level_adu = Reg(camera_reg::kBlackLevel);
   s.temperature_c = cooler_.Temperature(t0 + 0.5 * exposure_s);
-  s.depth = Reg(ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT) == ARV_PIXEL_FORMAT_MONO_12 ? PixelDepth::k12
-                                                                                  : PixelDepth::k16;
-  return sensor_.Expose(rates, region.offset_x, region.offset_y, region.binning_h,
-                        region.binning_v, s, rng_);
+  s.depth = Reg(ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT) == ARV_PIXEL_FORMAT_MONO_12
+                ? PixelDepth::k12
+                : PixelDepth::k16;
+  return sensor_.Expose(rates, region.offset_x, region.offset_y, region.binning_h, region.binning_v,
+                        s, rng_);
 }
 
 void SimulatedCamera::Step(double now) {
@@ -182,9 +183,8 @@ void SimulatedCamera::Step(double now) {
     SetReg(kSetpointActivate, 0);
     cooler_.SetSetpoint(static_cast<std::int32_t>(Reg(kSetpoint)) / 1000.0, now);
   }
-  SetReg(kDeviceTemperature,
-         static_cast<std::uint32_t>(static_cast<std::int32_t>(
-             std::lround(cooler_.Temperature(now) * 1000))));
+  SetReg(kDeviceTemperature, static_cast<std::uint32_t>(static_cast<std::int32_t>(
+                                 std::lround(cooler_.Temperature(now) * 1000))));
   SetReg(kCoolingPower, static_cast<std::uint32_t>(std::lround(cooler_.PowerPercent(now) * 1000)));
 
   if (Reg(kFakeAcquisition) == 0) {  // stopped: forget exposures in progress and stale triggers

@@ -6,8 +6,8 @@
 namespace gonio::sim {
 
 void Cooler::Retarget() {
-  target_ = (enabled_ && !failed_) ? std::max(setpoint_, o_.ambient_c - o_.max_delta_c)
-                                   : o_.ambient_c;
+  target_ =
+      (enabled_ && !failed_) ? std::max(setpoint_, o_.ambient_c - o_.max_delta_c) : o_.ambient_c;
 }
 
 double Cooler::Temperature(double t) const {

@@ -7,8 +7,8 @@ namespace gonio::sim {
 
 struct CoolerOptions {
   double ambient_c = 20;
-  double max_delta_c = 45;       // deepest cooling below ambient at full power
-  double time_constant_s = 60;   // of the approach to the target
+  double max_delta_c = 45;      // deepest cooling below ambient at full power
+  double time_constant_s = 60;  // of the approach to the target
 };
 
 class Cooler {

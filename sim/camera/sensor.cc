@@ -6,7 +6,10 @@
 namespace gonio::sim {
 
 Sensor::Sensor(int sensor_width, int sensor_height, SensorOptions options, std::uint64_t seed)
-    : width_(sensor_width), height_(sensor_height), o_(options), hot_(sensor_height, sensor_width, std::uint8_t{0}) {
+    : width_(sensor_width),
+      height_(sensor_height),
+      o_(options),
+      hot_(sensor_height, sensor_width, std::uint8_t{0}) {
   std::mt19937_64 rng(seed ^ 0x484f54ull);
   std::bernoulli_distribution hot(o_.hot_pixel_fraction);
   for (int j = 0; j < height_; ++j)
@@ -21,8 +24,8 @@ cv::Mat1w Sensor::Expose(const cv::Mat1d& rate, int offset_x, int offset_y, int 
                          int binning_v, const ExposureSettings& s, std::mt19937_64& rng) const {
   const double dark = DarkCurrent(s.temperature_c);
   const double adc_max = s.depth == PixelDepth::k16 ? 65535 : 4095;
-  const double gain = o_.gain_e_per_adu * (s.depth == PixelDepth::k16 ? 1 : 16) /
-                      std::pow(10.0, s.gain_db / 20);
+  const double gain =
+      o_.gain_e_per_adu * (s.depth == PixelDepth::k16 ? 1 : 16) / std::pow(10.0, s.gain_db / 20);
   // A binned pixel collects its sensor pixels' charge (full well per sensor pixel, summed).
   const double full_well = o_.full_well_e * binning_h * binning_v;
   std::normal_distribution<double> unit(0, 1);

@@ -22,8 +22,8 @@ struct SensorOptions {
   double dark_e_per_s_ref = 0.5;  // per sensor pixel at dark_ref_c
   double dark_ref_c = -20;
   double dark_doubling_c = 6;
-  double hot_pixel_fraction = 1e-4;  // fixed at power-up from the seed
-  double hot_pixel_factor = 300;     // their dark current, in units of a normal pixel's
+  double hot_pixel_fraction = 1e-4;    // fixed at power-up from the seed
+  double hot_pixel_factor = 300;       // their dark current, in units of a normal pixel's
   double readout_pixel_rate_hz = 1e6;  // readout time = pixels / rate
 };
 
@@ -47,8 +47,8 @@ class Sensor {
 
   // One frame. rate: e-/s per output pixel (the scene's Render, already binned), covering
   // sensor pixels from (offset_x, offset_y) with the given binning (for hot pixels and dark).
-  cv::Mat1w Expose(const cv::Mat1d& rate, int offset_x, int offset_y, int binning_h,
-                   int binning_v, const ExposureSettings& s, std::mt19937_64& rng) const;
+  cv::Mat1w Expose(const cv::Mat1d& rate, int offset_x, int offset_y, int binning_h, int binning_v,
+                   const ExposureSettings& s, std::mt19937_64& rng) const;
 
  private:
   int width_, height_;

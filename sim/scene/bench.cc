@@ -75,7 +75,7 @@ std::optional<PixelRay> Scene::Trace(const StageAngles& angles, double x_mm, dou
   if (disc <= 0) return std::nullopt;
   const V on_sphere = pinhole + r * (-b - std::sqrt(disc));
   if (on_sphere.z > -bench_.sample_thickness_mm) return std::nullopt;  // beside the lens
-  const V n_s = (on_sphere - origin) / R;  // outward
+  const V n_s = (on_sphere - origin) / R;                              // outward
   const double cos_i = Dot(-r, n_s);
   if (cos_i <= 0) return std::nullopt;
   const double t_exit = 1 - optics::FresnelDielectric(cos_i, bench_.eta);

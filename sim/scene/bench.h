@@ -51,8 +51,8 @@ struct BenchGeometry {
 };
 
 struct StageAngles {
-  double sample_deg = 0;  // sample rotation: the incidence angle
-  double arm_deg = 180;   // detector arm, lab angle; 180 = straight through at normal incidence
+  double sample_deg = 0;   // sample rotation: the incidence angle
+  double arm_deg = 180;    // detector arm, lab angle; 180 = straight through at normal incidence
   double azimuth_deg = 0;  // optional third axis, about the sample normal
 };
 
@@ -72,7 +72,7 @@ StageAngles StageAnglesFor(double theta_l_deg, double theta_v_deg, double azimut
 // The image geometry the camera asks for: a region of the sensor, binned.
 struct ImageRegion {
   int sensor_width = 512, sensor_height = 512;
-  double mm_per_pixel = 0.16;  // object-side pitch at O; 512 px = 82 mm covers the lens
+  double mm_per_pixel = 0.16;      // object-side pitch at O; 512 px = 82 mm covers the lens
   int offset_x = 0, offset_y = 0;  // sensor pixels
   int width = 512, height = 512;   // output pixels
   int binning_h = 1, binning_v = 1;
@@ -92,8 +92,8 @@ struct SceneOptions {
 
 // One pixel's traced ray.
 struct PixelRay {
-  optics::Vec3<double> l, v;  // sample frame, at the hit point
-  optics::Vec3<double> hit_mm;  // on the rough surface
+  optics::Vec3<double> l, v;      // sample frame, at the hit point
+  optics::Vec3<double> hit_mm;    // on the rough surface
   double exit_transmittance = 1;  // Fresnel transmittance at the sphere surface
 };
 

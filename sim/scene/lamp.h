@@ -9,12 +9,12 @@
 namespace gonio::sim {
 
 struct LampOptions {
-  double nominal_w = 1.2e-3;          // power at the monitor's sensor
-  double drift_per_hour = 0.01;       // linear, relative
-  double wander_amplitude = 0.005;    // slow sinusoidal wander, relative
+  double nominal_w = 1.2e-3;        // power at the monitor's sensor
+  double drift_per_hour = 0.01;     // linear, relative
+  double wander_amplitude = 0.005;  // slow sinusoidal wander, relative
   double wander_period_s = 1800;
-  double flicker_rms = 0.002;         // fast, relative (a few incommensurate tones)
-  double warmup_s = 0;                // exponential rise from 90 % over this time constant
+  double flicker_rms = 0.002;  // fast, relative (a few incommensurate tones)
+  double warmup_s = 0;         // exponential rise from 90 % over this time constant
 };
 
 class Lamp {

@@ -26,7 +26,8 @@ class CameraGigETest : public ::testing::Test {
     CameraOptions o;
     o.sensor.sensor_width = o.sensor.sensor_height = 256;
     o.sensor.mm_per_pixel = 0.32;
-    auto cam = SimulatedCamera::StartGigE(clock_, *scene_, [this] { return angles_; }, lamp_, o);
+    auto cam = SimulatedCamera::StartGigE(
+        clock_, *scene_, [this] { return angles_; }, lamp_, o);
     ASSERT_TRUE(cam.ok()) << cam.error().message;
     camera_ = std::move(cam).value();
     GError* error = nullptr;

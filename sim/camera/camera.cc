@@ -95,9 +95,10 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(const Clock&
 }
 
 SimulatedCamera::~SimulatedCamera() {
-  if (gv_ != nullptr) g_object_unref(gv_);  // joins Aravis's thread: no Fill after this
+  // The firmware reads the fake camera's registers: stop it before the camera goes.
   stop_ = true;
   if (firmware_.joinable()) firmware_.join();
+  if (gv_ != nullptr) g_object_unref(gv_);  // joins Aravis's thread: no Fill after this
 }
 
 std::uint32_t SimulatedCamera::Reg(std::uint32_t address) const {

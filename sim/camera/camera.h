@@ -74,7 +74,7 @@ class SimulatedCamera {
   static Result<std::unique_ptr<SimulatedCamera>> StartGigE(const Clock& clock, const Scene& scene,
                                                             AnglesSource angles, const Lamp& lamp,
                                                             CameraOptions options = {});
-  ~SimulatedCamera();  // stops the protocol thread, then the firmware
+  ~SimulatedCamera();  // stops the firmware, then the protocol thread
   SimulatedCamera(const SimulatedCamera&) = delete;
   SimulatedCamera& operator=(const SimulatedCamera&) = delete;
 

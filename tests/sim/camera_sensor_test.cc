@@ -110,8 +110,8 @@ TEST(CoolerTest, CannotCoolBelowItsPowerLimitAndWarmsWhenItFails) {
   c.SetEnabled(true, 0);
   EXPECT_NEAR(c.Temperature(1e4), o.ambient_c - o.max_delta_c, 1e-6);
   c.SetFailed(true, 1e4);
-  EXPECT_NEAR(c.Temperature(1e4 + o.time_constant_s),
-              o.ambient_c - o.max_delta_c / std::exp(1.0), 1e-9);
+  EXPECT_NEAR(c.Temperature(1e4 + o.time_constant_s), o.ambient_c - o.max_delta_c / std::exp(1.0),
+              1e-9);
   EXPECT_EQ(c.PowerPercent(1e4 + 1), 0);
 }
 

@@ -1,0 +1,206 @@
+#include "sim/sim_config.h"
+
+#include <set>
+#include <sstream>
+#include <toml++/toml.h>
+
+namespace gonio::sim {
+
+namespace {
+
+// Reads one key of a table into *out when present, checking its type and range.
+class Reader {
+ public:
+  Reader(std::string path) : path_(std::move(path)) {}
+
+  Error Fail(const toml::node* node, const std::string& what) const {
+    std::ostringstream s;
+    s << path_;
+    if (node != nullptr) s << ":" << node->source().begin.line;
+    s << ": " << what;
+    return Error{ErrorCode::kInvalidArgument, s.str()};
+  }
+
+  // Known keys only: a misspelt key is an error, not a silent default.
+  Status Keys(const toml::table& t, const std::string& where, std::set<std::string> known) {
+    for (const auto& [k, v] : t) {
+      if (!known.count(std::string(k.str()))) {
+        return Fail(&v, "unknown key '" + std::string(k.str()) + "' in [" + where + "]");
+      }
+    }
+    return OkStatus();
+  }
+
+  Status Number(const toml::table& t, const char* key, double* out, double lo, double hi) {
+    const toml::node* n = t.get(key);
+    if (n == nullptr) return OkStatus();
+    const auto v = n->value<double>();
+    if (!v) return Fail(n, std::string("'") + key + "' must be a number");
+    if (!(*v >= lo && *v <= hi)) {
+      std::ostringstream s;
+      s << "'" << key << "' = " << *v << " is outside [" << lo << ", " << hi << "]";
+      return Fail(n, s.str());
+    }
+    *out = *v;
+    return OkStatus();
+  }
+
+  Status Integer(const toml::table& t, const char* key, std::int64_t* out, std::int64_t lo,
+                 std::int64_t hi) {
+    const toml::node* n = t.get(key);
+    if (n == nullptr) return OkStatus();
+    const auto v = n->value_exact<std::int64_t>();
+    if (!v) return Fail(n, std::string("'") + key + "' must be an integer");
+    if (*v < lo || *v > hi) {
+      std::ostringstream s;
+      s << "'" << key << "' = " << *v << " is outside [" << lo << ", " << hi << "]";
+      return Fail(n, s.str());
+    }
+    *out = *v;
+    return OkStatus();
+  }
+
+  Status String(const toml::table& t, const char* key, std::string* out,
+                const std::set<std::string>& allowed = {}) {
+    const toml::node* n = t.get(key);
+    if (n == nullptr) return OkStatus();
+    const auto v = n->value<std::string>();
+    if (!v) return Fail(n, std::string("'") + key + "' must be a string");
+    if (!allowed.empty() && !allowed.count(*v)) {
+      std::string list;
+      for (const auto& a : allowed) list += (list.empty() ? "" : ", ") + a;
+      return Fail(n, std::string("'") + key + "' = \"" + *v + "\" is not one of: " + list);
+    }
+    *out = *v;
+    return OkStatus();
+  }
+
+  Status Bool(const toml::table& t, const char* key, bool* out) {
+    const toml::node* n = t.get(key);
+    if (n == nullptr) return OkStatus();
+    const auto v = n->value_exact<bool>();
+    if (!v) return Fail(n, std::string("'") + key + "' must be true or false");
+    *out = *v;
+    return OkStatus();
+  }
+
+ private:
+  std::string path_;
+};
+
+#define GONIO_TRY(expr)              \
+  do {                               \
+    if (Status s_ = (expr); !s_.ok()) return s_.error(); \
+  } while (0)
+
+}  // namespace
+
+SimConfig DefaultSimConfig() {
+  SimConfig c;
+  c.axes = {{"sample", 1000, 0, {}}, {"arm", 1000, 180, {}}, {"azimuth", 1000, 0, {}}};
+  return c;
+}
+
+StageAngles AnglesFromSteps(const std::vector<AxisConfig>& axes, const std::vector<double>& steps) {
+  StageAngles a;
+  for (std::size_t k = 0; k < axes.size() && k < steps.size(); ++k) {
+    const double deg = axes[k].degrees_at_zero + steps[k] / axes[k].steps_per_degree;
+    if (axes[k].role == "sample") a.sample_deg = deg;
+    if (axes[k].role == "arm") a.arm_deg = deg;
+    if (axes[k].role == "azimuth") a.azimuth_deg = deg;
+  }
+  return a;
+}
+
+Result<SimConfig> LoadSimConfig(const std::string& path) {
+  toml::table root;
+  try {
+    root = toml::parse_file(path);
+  } catch (const toml::parse_error& e) {
+    std::ostringstream s;
+    s << path << ":" << e.source().begin.line << ": " << e.description();
+    return Error{ErrorCode::kInvalidArgument, s.str()};
+  }
+  Reader r(path);
+  SimConfig c = DefaultSimConfig();
+  GONIO_TRY(r.Keys(root, "top level", {"clock", "stages", "camera", "sample", "lamp"}));
+
+  if (const toml::table* t = root["clock"].as_table()) {
+    GONIO_TRY(r.Keys(*t, "clock", {"speed", "seed"}));
+    GONIO_TRY(r.Number(*t, "speed", &c.clock_speed, 1e-3, 1e4));
+    std::int64_t seed = 1;
+    GONIO_TRY(r.Integer(*t, "seed", &seed, 0, INT64_MAX));
+    c.seed = static_cast<std::uint64_t>(seed);
+  }
+  if (const toml::table* t = root["stages"].as_table()) {
+    GONIO_TRY(r.Keys(*t, "stages", {"port", "axis"}));
+    std::int64_t port = c.modbus_port;
+    GONIO_TRY(r.Integer(*t, "port", &port, 0, 65535));
+    c.modbus_port = static_cast<int>(port);
+    if (const toml::node* n = t->get("axis")) {
+      const toml::array* list = n->as_array();
+      if (list == nullptr || list->empty()) return r.Fail(n, "[[stages.axis]] must list axes");
+      if (list->size() > 8) return r.Fail(n, "at most 8 axes (unit ids 1..8)");
+      c.axes.clear();
+      std::set<std::string> roles;
+      for (const toml::node& item : *list) {
+        const toml::table* a = item.as_table();
+        if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
+        AxisConfig ax;
+        GONIO_TRY(r.Keys(*a, "stages.axis",
+                         {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps",
+                          "settle_s"}));
+        if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
+        GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth"}));
+        if (!roles.insert(ax.role).second) {
+          return r.Fail(a->get("role"), "role '" + ax.role + "' given to two axes");
+        }
+        GONIO_TRY(r.Number(*a, "steps_per_degree", &ax.steps_per_degree, 1e-3, 1e7));
+        GONIO_TRY(r.Number(*a, "degrees_at_zero", &ax.degrees_at_zero, -360, 360));
+        std::int64_t lo = ax.options.min_steps, hi = ax.options.max_steps;
+        GONIO_TRY(r.Integer(*a, "min_steps", &lo, INT32_MIN, INT32_MAX));
+        GONIO_TRY(r.Integer(*a, "max_steps", &hi, INT32_MIN, INT32_MAX));
+        if (lo >= hi) return r.Fail(a, "min_steps must be below max_steps");
+        ax.options.min_steps = static_cast<std::int32_t>(lo);
+        ax.options.max_steps = static_cast<std::int32_t>(hi);
+        GONIO_TRY(r.Number(*a, "settle_s", &ax.options.settle_s, 0, 10));
+        c.axes.push_back(ax);
+      }
+    }
+  }
+  if (const toml::table* t = root["camera"].as_table()) {
+    GONIO_TRY(r.Keys(*t, "camera",
+                     {"enabled", "address", "serial", "sensor_width", "sensor_height",
+                      "mm_per_pixel", "genicam"}));
+    GONIO_TRY(r.Bool(*t, "enabled", &c.camera_enabled));
+    GONIO_TRY(r.String(*t, "address", &c.camera.address));
+    if (c.camera.address.rfind("127.", 0) != 0) {
+      return r.Fail(t->get("address"), "camera address must be a loopback address (127.x.x.x)");
+    }
+    GONIO_TRY(r.String(*t, "serial", &c.camera.serial));
+    GONIO_TRY(r.String(*t, "genicam", &c.camera.genicam_path));
+    std::int64_t w = c.camera.sensor.sensor_width, h = c.camera.sensor.sensor_height;
+    GONIO_TRY(r.Integer(*t, "sensor_width", &w, 16, 4096));
+    GONIO_TRY(r.Integer(*t, "sensor_height", &h, 16, 4096));
+    c.camera.sensor.sensor_width = c.camera.sensor.width = static_cast<int>(w);
+    c.camera.sensor.sensor_height = c.camera.sensor.height = static_cast<int>(h);
+    GONIO_TRY(r.Number(*t, "mm_per_pixel", &c.camera.sensor.mm_per_pixel, 1e-3, 10));
+  }
+  if (const toml::table* t = root["sample"].as_table()) {
+    GONIO_TRY(r.Keys(*t, "sample", {"model", "alpha", "eta", "thickness_mm"}));
+    GONIO_TRY(r.String(*t, "model", &c.sample_model, {"beckmann", "ggx"}));
+    GONIO_TRY(r.Number(*t, "alpha", &c.sample_alpha, 1e-3, 2));
+    GONIO_TRY(r.Number(*t, "eta", &c.sample_eta, 1.01, 3));
+    GONIO_TRY(r.Number(*t, "thickness_mm", &c.bench.sample_thickness_mm, 0.5, 30));
+  }
+  if (const toml::table* t = root["lamp"].as_table()) {
+    GONIO_TRY(r.Keys(*t, "lamp", {"nominal_w", "drift_per_hour", "flicker_rms"}));
+    GONIO_TRY(r.Number(*t, "nominal_w", &c.lamp.nominal_w, 0, 10));
+    GONIO_TRY(r.Number(*t, "drift_per_hour", &c.lamp.drift_per_hour, -1, 1));
+    GONIO_TRY(r.Number(*t, "flicker_rms", &c.lamp.flicker_rms, 0, 0.5));
+  }
+  c.camera.seed = c.seed;
+  return c;
+}
+
+}  // namespace gonio::sim

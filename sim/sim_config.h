@@ -1,0 +1,51 @@
+// gonio-sim's configuration file (TOML): which devices to serve, the sample's ground truth, the
+// bench and the clock. The example with every key and its default: config/sim.toml. Errors name
+// the file and line ("sim.toml:12: ...") and nothing starts until the whole file is valid.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "common/result.h"
+#include "sim/camera/camera.h"
+#include "sim/scene/bench.h"
+#include "sim/scene/lamp.h"
+#include "sim/stage/axis.h"
+
+namespace gonio::sim {
+
+// One rotation stage: its role in the scene and its gearing (what the daemon's config must
+// mirror for the same motor). Angle (deg) = degrees_at_zero + steps / steps_per_degree.
+struct AxisConfig {
+  std::string role;  // "sample", "arm" or "azimuth"; unit id = position in the file + 1
+  double steps_per_degree = 1000;
+  double degrees_at_zero = 0;
+  AxisOptions options;
+};
+
+struct SimConfig {
+  double clock_speed = 1.0;  // simulated seconds per real second
+  std::uint64_t seed = 1;
+  int modbus_port = 5020;  // Modbus TCP on 127.0.0.1; 0: any free port
+  std::vector<AxisConfig> axes;
+  bool camera_enabled = true;
+  CameraOptions camera;
+  std::string sample_model = "beckmann";  // beckmann | ggx
+  double sample_alpha = 0.344;             // Walter 2007 Figure 12, ground glass
+  double sample_eta = 1.51;
+  BenchGeometry bench;
+  SceneOptions scene;
+  LampOptions lamp;
+};
+
+// The defaults when no file is given: three axes (sample, arm at 180 deg, azimuth), the camera,
+// ground glass.
+SimConfig DefaultSimConfig();
+// Parses and validates a file; errors carry "path:line: what is wrong".
+Result<SimConfig> LoadSimConfig(const std::string& path);
+
+// Stage angles from the axes' positions (steps) in the order of config.axes.
+StageAngles AnglesFromSteps(const std::vector<AxisConfig>& axes, const std::vector<double>& steps);
+
+}  // namespace gonio::sim

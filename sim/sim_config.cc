@@ -1,8 +1,8 @@
 #include "sim/sim_config.h"
 
+#include <toml++/toml.h>
 #include <set>
 #include <sstream>
-#include <toml++/toml.h>
 
 namespace gonio::sim {
 
@@ -88,8 +88,8 @@ class Reader {
   std::string path_;
 };
 
-#define GONIO_TRY(expr)              \
-  do {                               \
+#define GONIO_TRY(expr)                                  \
+  do {                                                   \
     if (Status s_ = (expr); !s_.ok()) return s_.error(); \
   } while (0)
 
@@ -147,9 +147,9 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
         const toml::table* a = item.as_table();
         if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
         AxisConfig ax;
-        GONIO_TRY(r.Keys(*a, "stages.axis",
-                         {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps",
-                          "settle_s"}));
+        GONIO_TRY(r.Keys(
+            *a, "stages.axis",
+            {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps", "settle_s"}));
         if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
         GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth"}));
         if (!roles.insert(ax.role).second) {

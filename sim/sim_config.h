@@ -32,7 +32,7 @@ struct SimConfig {
   bool camera_enabled = true;
   CameraOptions camera;
   std::string sample_model = "beckmann";  // beckmann | ggx
-  double sample_alpha = 0.344;             // Walter 2007 Figure 12, ground glass
+  double sample_alpha = 0.344;            // Walter 2007 Figure 12, ground glass
   double sample_eta = 1.51;
   BenchGeometry bench;
   SceneOptions scene;

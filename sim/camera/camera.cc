@@ -234,7 +234,6 @@ void SimulatedCamera::Fill(_ArvBuffer* buffer, void* self, std::uint32_t, std::u
   } else {
     for (int j = 0; j < h; ++j) std::memcpy(data + std::size_t(j) * w * 2, frame->ptr(j), w * 2);
   }
-  ++cam->frames_sent_;
 }
 
 }  // namespace gonio::sim

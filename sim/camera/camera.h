@@ -84,7 +84,6 @@ class SimulatedCamera {
   void FailCooler(bool failed);
 
   double SensorTemperature() const;
-  long frames_sent() const { return frames_sent_.load(); }
   const Sensor& sensor() const { return sensor_; }
 
  private:
@@ -126,7 +125,6 @@ class SimulatedCamera {
   };
   std::optional<CacheEntry> cache_;
 
-  std::atomic<long> frames_sent_{0};
   std::atomic<bool> stop_{false};
   std::thread firmware_;
 };

@@ -24,9 +24,6 @@ class Cooler {
   double Temperature(double t) const;
   // Fraction of full power (0..100 %) the controller drives at time t.
   double PowerPercent(double t) const;
-  bool enabled() const { return enabled_; }
-  double setpoint() const { return setpoint_; }
-  double Target() const { return target_; }  // where the temperature is heading
 
  private:
   void Rebase(double t) { T0_ = Temperature(t), t0_ = t; }

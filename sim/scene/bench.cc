@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <numbers>
+#include <utility>
 
 #include <opencv2/core/utility.hpp>
 
@@ -29,6 +30,12 @@ struct Frame {
   V source_dir, camera_dir;  // before the azimuth turn
   double phi = 0;
 };
+
+// The object-plane point (mm) that a sensor pixel's centre looks at.
+std::pair<double, double> ObjectPointMm(const ImageRegion& region, int col, int row) {
+  return {(col + 0.5 - region.sensor_width / 2.0) * region.mm_per_pixel,
+          (row + 0.5 - region.sensor_height / 2.0) * region.mm_per_pixel};
+}
 
 Frame FrameOf(const StageAngles& a) {
   const double s = a.sample_deg * kDeg;
@@ -126,8 +133,7 @@ double Scene::RateAt(const StageAngles& angles, double x_mm, double y_mm, bool s
 double Scene::PixelRate(const StageAngles& angles, const ImageRegion& region, int col,
                         int row) const {
   const bool shadowed = Nominal(bench_, angles).arm_shadows_source;
-  const double x = (col + 0.5 - region.sensor_width / 2.0) * region.mm_per_pixel;
-  const double y = (row + 0.5 - region.sensor_height / 2.0) * region.mm_per_pixel;
+  const auto [x, y] = ObjectPointMm(region, col, row);
   return RateAt(angles, x, y, shadowed, !shadowed && NeedsApertures(angles));
 }
 
@@ -144,8 +150,7 @@ cv::Mat1d Scene::Render(const StageAngles& angles, const ImageRegion& region) co
             const int col = region.offset_x + i * region.binning_h + di;
             const int row = region.offset_y + j * region.binning_v + dj;
             if (col >= region.sensor_width || row >= region.sensor_height) continue;
-            const double x = (col + 0.5 - region.sensor_width / 2.0) * region.mm_per_pixel;
-            const double y = (row + 0.5 - region.sensor_height / 2.0) * region.mm_per_pixel;
+            const auto [x, y] = ObjectPointMm(region, col, row);
             sum += RateAt(angles, x, y, shadowed, averaged);
           }
         }

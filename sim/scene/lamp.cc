@@ -23,7 +23,6 @@ double Lamp::Slow(double t) const {
 }
 
 double Lamp::Relative(double t) const {
-  if (off_) return 0;
   // Three equal tones of rms a/sqrt(2) each give an rms of flicker_rms in total.
   double f = 0;
   for (int k = 0; k < 3; ++k)
@@ -32,7 +31,6 @@ double Lamp::Relative(double t) const {
 }
 
 double Lamp::MeanRelative(double t0, double t1) const {
-  if (off_) return 0;
   if (t1 - t0 < 1.0) {  // short: sample the flicker too (16-point midpoint rule)
     double s = 0;
     for (int k = 0; k < 16; ++k) s += Relative(t0 + (k + 0.5) * (t1 - t0) / 16);

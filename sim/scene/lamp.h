@@ -26,14 +26,11 @@ class Lamp {
   // Mean of Relative over [t0, t1] (an exposure); the midpoint rule with the flicker averaged out
   // for exposures longer than its periods.
   double MeanRelative(double t0, double t1) const;
-  // A failed lamp (fault plan) gives no light until restored.
-  void SetOff(bool off) { off_ = off; }
 
  private:
   double Slow(double t) const;
   LampOptions o_;
   std::array<double, 3> flicker_hz_{}, flicker_phase_{};
-  bool off_ = false;
 };
 
 }  // namespace gonio::sim

@@ -123,7 +123,8 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
   }
   Reader r(path);
   SimConfig c = DefaultSimConfig();
-  GONIO_TRY(r.Keys(root, "top level", {"clock", "stages", "camera", "sample", "lamp"}));
+  GONIO_TRY(r.Keys(root, "top level",
+                   {"clock", "stages", "camera", "sample", "lamp", "monitor", "faults"}));
 
   if (const toml::table* t = root["clock"].as_table()) {
     GONIO_TRY(r.Keys(*t, "clock", {"speed", "seed"}));
@@ -133,10 +134,11 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
     c.seed = static_cast<std::uint64_t>(seed);
   }
   if (const toml::table* t = root["stages"].as_table()) {
-    GONIO_TRY(r.Keys(*t, "stages", {"port", "axis"}));
+    GONIO_TRY(r.Keys(*t, "stages", {"port", "rtu_link", "axis"}));
     std::int64_t port = c.modbus_port;
     GONIO_TRY(r.Integer(*t, "port", &port, 0, 65535));
     c.modbus_port = static_cast<int>(port);
+    GONIO_TRY(r.String(*t, "rtu_link", &c.rtu_link));
     if (const toml::node* n = t->get("axis")) {
       const toml::array* list = n->as_array();
       if (list == nullptr || list->empty()) return r.Fail(n, "[[stages.axis]] must list axes");
@@ -149,7 +151,8 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
         AxisConfig ax;
         GONIO_TRY(r.Keys(
             *a, "stages.axis",
-            {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps", "settle_s"}));
+            {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps", "settle_s",
+             "limit_switches", "limit_min_steps", "limit_max_steps", "backlash_steps"}));
         if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
         GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth"}));
         if (!roles.insert(ax.role).second) {
@@ -164,6 +167,14 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
         ax.options.min_steps = static_cast<std::int32_t>(lo);
         ax.options.max_steps = static_cast<std::int32_t>(hi);
         GONIO_TRY(r.Number(*a, "settle_s", &ax.options.settle_s, 0, 10));
+        GONIO_TRY(r.Bool(*a, "limit_switches", &ax.options.limit_switches));
+        std::int64_t ls_lo = ax.options.limit_min_steps, ls_hi = ax.options.limit_max_steps;
+        GONIO_TRY(r.Integer(*a, "limit_min_steps", &ls_lo, INT32_MIN, INT32_MAX));
+        GONIO_TRY(r.Integer(*a, "limit_max_steps", &ls_hi, INT32_MIN, INT32_MAX));
+        if (ls_lo >= ls_hi) return r.Fail(a, "limit_min_steps must be below limit_max_steps");
+        ax.options.limit_min_steps = static_cast<std::int32_t>(ls_lo);
+        ax.options.limit_max_steps = static_cast<std::int32_t>(ls_hi);
+        GONIO_TRY(r.Number(*a, "backlash_steps", &ax.options.backlash_steps, 0, 1e6));
         c.axes.push_back(ax);
       }
     }
@@ -198,6 +209,56 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
     GONIO_TRY(r.Number(*t, "nominal_w", &c.lamp.nominal_w, 0, 10));
     GONIO_TRY(r.Number(*t, "drift_per_hour", &c.lamp.drift_per_hour, -1, 1));
     GONIO_TRY(r.Number(*t, "flicker_rms", &c.lamp.flicker_rms, 0, 0.5));
+  }
+  if (const toml::table* t = root["monitor"].as_table()) {
+    GONIO_TRY(r.Keys(*t, "monitor", {"enabled", "port", "serial", "noise_rel"}));
+    GONIO_TRY(r.Bool(*t, "enabled", &c.monitor_enabled));
+    std::int64_t port = c.monitor_port;
+    GONIO_TRY(r.Integer(*t, "port", &port, 0, 65535));
+    c.monitor_port = static_cast<int>(port);
+    GONIO_TRY(r.String(*t, "serial", &c.monitor.serial));
+    GONIO_TRY(r.Number(*t, "noise_rel", &c.monitor.noise_rel, 0, 0.1));
+  }
+  if (const toml::table* t = root["faults"].as_table()) {
+    GONIO_TRY(r.Keys(*t, "faults", {"seed", "event"}));
+    std::int64_t seed = static_cast<std::int64_t>(c.seed);
+    GONIO_TRY(r.Integer(*t, "seed", &seed, 0, INT64_MAX));
+    c.fault_seed = static_cast<std::uint64_t>(seed);
+    if (const toml::node* n = t->get("event")) {
+      const toml::array* list = n->as_array();
+      if (list == nullptr) return r.Fail(n, "[[faults.event]] must be a list of tables");
+      for (const toml::node& item : *list) {
+        const toml::table* e = item.as_table();
+        if (e == nullptr) return r.Fail(&item, "each [[faults.event]] must be a table");
+        GONIO_TRY(r.Keys(*e, "faults.event",
+                         {"kind", "target", "at_opportunity", "at_time_s", "probability", "count",
+                          "code", "duration_s"}));
+        FaultEvent ev;
+        std::string kind;
+        if (e->get("kind") == nullptr) return r.Fail(&item, "fault event without 'kind'");
+        GONIO_TRY(
+            r.String(*e, "kind", &kind,
+                     {"modbus_timeout", "modbus_crc", "modbus_drop", "axis_alarm", "axis_stall",
+                      "frame_drop", "frame_incomplete", "cooler_fail", "monitor_disconnect"}));
+        ev.kind = *FaultKindFromString(kind);
+        GONIO_TRY(r.String(*e, "target", &ev.target, {"sample", "arm", "azimuth"}));
+        GONIO_TRY(r.Integer(*e, "at_opportunity", &ev.at_opportunity, 1, INT64_MAX));
+        GONIO_TRY(r.Number(*e, "at_time_s", &ev.at_time_s, 0, 1e9));
+        GONIO_TRY(r.Number(*e, "probability", &ev.probability, 0, 1));
+        const int triggers = (e->get("at_opportunity") != nullptr) +
+                             (e->get("at_time_s") != nullptr) + (e->get("probability") != nullptr);
+        if (triggers != 1)
+          return r.Fail(
+              &item, "a fault event needs exactly one of at_opportunity, at_time_s, probability");
+        std::int64_t count = 1, code = 0;
+        GONIO_TRY(r.Integer(*e, "count", &count, 1, INT32_MAX));
+        GONIO_TRY(r.Integer(*e, "code", &code, 0, 0xFFFF));
+        ev.count = static_cast<int>(count);
+        ev.code = static_cast<std::uint32_t>(code);
+        GONIO_TRY(r.Number(*e, "duration_s", &ev.duration_s, 0, 1e6));
+        c.faults.push_back(ev);
+      }
+    }
   }
   c.camera.seed = c.seed;
   return c;

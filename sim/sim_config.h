@@ -9,6 +9,8 @@
 
 #include "common/result.h"
 #include "sim/camera/camera.h"
+#include "sim/faults/fault_plan.h"
+#include "sim/monitor/power_meter.h"
 #include "sim/scene/bench.h"
 #include "sim/scene/lamp.h"
 #include "sim/stage/axis.h"
@@ -28,7 +30,13 @@ struct SimConfig {
   double clock_speed = 1.0;  // simulated seconds per real second
   std::uint64_t seed = 1;
   int modbus_port = 5020;  // Modbus TCP on 127.0.0.1; 0: any free port
+  std::string rtu_link;    // when set: Modbus RTU on a pty too, symlinked here
   std::vector<AxisConfig> axes;
+  bool monitor_enabled = true;
+  int monitor_port = 5021;  // the USBTMC socket transport on 127.0.0.1; 0: any free port
+  PowerMeterOptions monitor;
+  std::uint64_t fault_seed = 1;
+  std::vector<FaultEvent> faults;  // none by default
   bool camera_enabled = true;
   CameraOptions camera;
   std::string sample_model = "beckmann";  // beckmann | ggx

@@ -34,21 +34,20 @@ void WriteString(ArvFakeCamera* fake, std::uint32_t address, std::size_t size,
 std::string DefaultCameraGenicamPath() { return GONIO_SIM_CAMERA_XML; }
 
 SimulatedCamera::SimulatedCamera(const Clock& clock, const Scene& scene, AnglesSource angles,
-                                 const Lamp& lamp, CameraOptions options)
+                                 const Lamp& lamp, CameraOptions options, FaultPlan* faults)
     : clock_(clock),
       scene_(scene),
       angles_(std::move(angles)),
       lamp_(lamp),
       o_(std::move(options)),
+      faults_(faults),
       sensor_(o_.sensor.sensor_width, o_.sensor.sensor_height, o_.sensor_options, o_.seed),
       cooler_(o_.cooler, clock.Now()),
       rng_(o_.seed) {}
 
-Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(const Clock& clock,
-                                                                    const Scene& scene,
-                                                                    AnglesSource angles,
-                                                                    const Lamp& lamp,
-                                                                    CameraOptions options) {
+Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
+    const Clock& clock, const Scene& scene, AnglesSource angles, const Lamp& lamp,
+    CameraOptions options, FaultPlan* faults) {
   if (options.address.rfind("127.", 0) != 0) {
     return Error{ErrorCode::kInvalidArgument,
                  "simulated camera address " + options.address +
@@ -58,7 +57,7 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(const Clock&
     return Error{ErrorCode::kIo, "GenICam file not found: " + options.genicam_path};
   }
   std::unique_ptr<SimulatedCamera> cam(
-      new SimulatedCamera(clock, scene, std::move(angles), lamp, std::move(options)));
+      new SimulatedCamera(clock, scene, std::move(angles), lamp, std::move(options), faults));
   const CameraOptions& o = cam->o_;
   cam->gv_ =
       arv_gv_fake_camera_new_full(o.address.c_str(), o.serial.c_str(), o.genicam_path.c_str());
@@ -174,6 +173,7 @@ void SimulatedCamera::Step(double now) {
   using namespace camera_reg;
   const StageAngles angles = angles_ ? angles_() : StageAngles{};
   std::lock_guard lock(mu_);
+  if (MaybeFire(faults_, FaultKind::kCoolerFail, "camera", now)) cooler_.SetFailed(true, now);
   // Cooler: mode on write, setpoint on Activate (as Goldeye-style cameras apply it).
   const std::uint32_t mode = Reg(kCoolerMode);
   if (mode != cooler_mode_) {
@@ -207,9 +207,17 @@ void SimulatedCamera::Step(double now) {
   const double readout_s = sensor_.ReadoutSeconds(region.width * region.height);
   if (now < exposure_start_ + exposure_s_ + readout_s) return;
   exposing_ = false;
-  if (drop_frames_ > 0) {  // the fault plan: this frame is lost
+  if (MaybeFire(faults_, FaultKind::kFrameDrop, "camera", now)) ++drop_frames_;
+  if (drop_frames_ > 0) {  // this frame is lost
     --drop_frames_;
     return;
+  }
+  // An incomplete frame: Aravis's fake camera drops that share of its GVSP packets. The previous
+  // frame has long left when the next is ready, so the ratio is set per frame.
+  const bool lose = MaybeFire(faults_, FaultKind::kFrameIncomplete, "camera", now).has_value();
+  if (lose != losing_packets_) {
+    g_object_set(gv_, "gvsp-lost-ratio", lose ? 0.3 : 0.0, nullptr);
+    losing_packets_ = lose;
   }
   ready_frame_ = Shoot(angles_at_start_, angles, exposure_start_, exposure_s_);
   SetReg(kFakeTriggerSoftware, 1);

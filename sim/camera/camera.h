@@ -29,6 +29,7 @@
 #include "sim/camera/cooler.h"
 #include "sim/camera/sensor.h"
 #include "sim/clock.h"
+#include "sim/faults/fault_plan.h"
 #include "sim/scene/bench.h"
 #include "sim/scene/lamp.h"
 
@@ -70,10 +71,14 @@ class SimulatedCamera {
  public:
   // Starts the GigE Vision camera on options.address (GVCP port 3956). Errors: the address is not
   // loopback (InvalidArgument), the genicam file is missing, or the port is taken (Io). The
-  // scene, the clock and the lamp must outlive the camera.
+  // scene, the clock, the lamp and the fault plan (may be null) must outlive the camera.
+  // Faults: frame_drop and frame_incomplete (opportunity: each frame at the end of its readout;
+  // an incomplete frame leaves with 30 % of its GVSP packets lost, which the client sees as a
+  // buffer with missing packets), cooler_fail (opportunity: each firmware step, so at_time_s).
   static Result<std::unique_ptr<SimulatedCamera>> StartGigE(const Clock& clock, const Scene& scene,
                                                             AnglesSource angles, const Lamp& lamp,
-                                                            CameraOptions options = {});
+                                                            CameraOptions options = {},
+                                                            FaultPlan* faults = nullptr);
   ~SimulatedCamera();  // stops the firmware, then the protocol thread
   SimulatedCamera(const SimulatedCamera&) = delete;
   SimulatedCamera& operator=(const SimulatedCamera&) = delete;
@@ -88,7 +93,7 @@ class SimulatedCamera {
 
  private:
   SimulatedCamera(const Clock& clock, const Scene& scene, AnglesSource angles, const Lamp& lamp,
-                  CameraOptions options);
+                  CameraOptions options, FaultPlan* faults);
   static void Fill(_ArvBuffer* buffer, void* self, std::uint32_t exposure_us, std::uint32_t gain,
                    std::uint32_t pixel_format);
   void Firmware();
@@ -104,6 +109,7 @@ class SimulatedCamera {
   AnglesSource angles_;
   const Lamp& lamp_;
   CameraOptions o_;
+  FaultPlan* faults_;
   Sensor sensor_;
 
   _ArvGvFakeCamera* gv_ = nullptr;
@@ -118,6 +124,7 @@ class SimulatedCamera {
   StageAngles angles_at_start_;
   std::optional<cv::Mat1w> ready_frame_;
   int drop_frames_ = 0;
+  bool losing_packets_ = false;  // the last frame left with gvsp-lost-ratio raised
   struct CacheEntry {
     StageAngles angles;
     ImageRegion region;

@@ -23,6 +23,7 @@ class Lamp {
   // Output relative to nominal at simulated time t (s).
   double Relative(double t) const;
   double PowerW(double t) const { return o_.nominal_w * Relative(t); }
+  double NominalW() const { return o_.nominal_w; }
   // Mean of Relative over [t0, t1] (an exposure); the midpoint rule with the flicker averaged out
   // for exposures longer than its periods.
   double MeanRelative(double t0, double t1) const;

@@ -1,24 +1,52 @@
 #include "sim/stage/axis.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace gonio::sim {
 
 using namespace stage_reg;
 
-SimulatedAxis::SimulatedAxis(const Clock& clock, AxisOptions options)
-    : clock_(clock), o_(options), move_(clock.Now(), 0, 0, 1, 1, 1) {
+SimulatedAxis::SimulatedAxis(const Clock& clock, AxisOptions options, std::string name,
+                             FaultPlan* faults)
+    : clock_(clock),
+      o_(options),
+      name_(std::move(name)),
+      faults_(faults),
+      move_(clock.Now(), 0, 0, 1, 1, 1) {
   Refresh();
+}
+
+double SimulatedAxis::MotorAt(double t) const {
+  if (hard_stop_ && t >= hard_stop_->time) return hard_stop_->position;
+  return move_.PositionAt(t);
+}
+
+bool SimulatedAxis::MovingAt(double t) const {
+  if (hard_stop_ && t >= hard_stop_->time) return false;
+  return t < move_.EndTime();
+}
+
+double SimulatedAxis::LoadAt(double t) const {
+  // A dead band of width b: within one monotone move the load is the anchor dragged by the
+  // nearer edge of [motor - b/2, motor + b/2].
+  const double m = MotorAt(t), half = 0.5 * o_.backlash_steps;
+  return std::clamp(load_anchor_, m - half, m + half);
 }
 
 bool SimulatedAxis::Moving() const {
   std::lock_guard lock(mu_);
-  return clock_.Now() < move_.EndTime();
+  return MovingAt(clock_.Now());
 }
 
 double SimulatedAxis::PositionSteps() const {
   std::lock_guard lock(mu_);
-  return move_.PositionAt(clock_.Now());
+  return LoadAt(clock_.Now());
+}
+
+double SimulatedAxis::MotorSteps() const {
+  std::lock_guard lock(mu_);
+  return MotorAt(clock_.Now());
 }
 
 std::uint16_t SimulatedAxis::Read(std::uint16_t address) {
@@ -35,6 +63,7 @@ void SimulatedAxis::Snapshot(std::uint16_t (&out)[kCount]) {
 
 void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, int count) {
   std::lock_guard lock(mu_);
+  Refresh();  // a hard stop that is due becomes an alarm before the write acts
   for (int k = 0; k < count; ++k) regs_[address + k] = values[k];
   auto touched = [&](std::uint16_t reg) { return address <= reg + 1 && reg < address + count; };
   if (touched(kAlarmReset) && Get32(kAlarmReset) == 1) {
@@ -56,53 +85,92 @@ void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, in
   Refresh();
 }
 
+void SimulatedAxis::NewMove(double now, const TrapezoidalMove& move) {
+  load_anchor_ = LoadAt(now);
+  move_ = move;
+  hard_stop_.reset();
+}
+
 void SimulatedAxis::Alarm(std::uint32_t code) {
   alarm_ = code;
   Stop();
 }
 
 void SimulatedAxis::Stop() {
-  move_ = move_.StoppedAt(clock_.Now());
+  const double now = clock_.Now();
+  NewMove(now, MovingAt(now) ? move_.StoppedAt(now)
+                             : TrapezoidalMove(now, MotorAt(now), MotorAt(now), 1, 1, 1));
   homing_ = false;
 }
 
 void SimulatedAxis::Home() {
-  if (alarm_ || clock_.Now() < move_.EndTime())
-    return;  // not READY: ignored, as the real driver does
   const double now = clock_.Now();
-  move_ = TrapezoidalMove(now, move_.PositionAt(now), 0, o_.home_speed, o_.home_acceleration,
-                          o_.home_acceleration);
+  if (alarm_ || MovingAt(now)) return;  // not READY: ignored, as the real driver does
+  NewMove(now, TrapezoidalMove(now, MotorAt(now), 0, o_.home_speed, o_.home_acceleration,
+                               o_.home_acceleration));
   homing_ = true;
 }
 
 void SimulatedAxis::StartDirectData() {
-  if (alarm_ || clock_.Now() < move_.EndTime()) return;  // not READY: ignored
   const double now = clock_.Now();
-  const double here = move_.PositionAt(now);
+  if (alarm_ || MovingAt(now)) return;  // not READY: ignored
+  const double here = MotorAt(now);
   const std::uint32_t type = Get32(kOperationType);
   const auto pos = static_cast<std::int32_t>(Get32(kPosition));
   const double speed = Get32(kSpeed), acc = Get32(kAcceleration), dec = Get32(kDeceleration);
   if ((type != 1 && type != 2) || speed <= 0 || acc <= 0 || dec <= 0) return Alarm(kAlarmBadData);
   const double target = type == 1 ? pos : std::round(here) + pos;
   if (target < o_.min_steps || target > o_.max_steps) return Alarm(kAlarmSoftwareOvertravel);
-  move_ = TrapezoidalMove(now, here, target, speed, acc, dec);
+  const TrapezoidalMove move(now, here, target, speed, acc, dec);
+  NewMove(now, move);
+  // A limit switch on the path: the motor stops dead where it presses it. The profile is
+  // monotone, so the crossing time is found by bisection.
+  if (o_.limit_switches && (target > o_.limit_max_steps || target < o_.limit_min_steps)) {
+    const double edge = target > o_.limit_max_steps ? o_.limit_max_steps : o_.limit_min_steps;
+    const double sign = target > here ? 1 : -1;
+    double lo = now, hi = move.EndTime();
+    for (int i = 0; i < 60; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (sign * (move.PositionAt(mid) - edge) < 0 ? lo : hi) = mid;
+    }
+    hard_stop_ = HardStop{hi, edge, kAlarmHardwareOvertravel};
+  }
+  // The fault plan's stall: the motor stops half way through the profile, and the controller
+  // notices the position deviation then (AZ alarm 0x10).
+  if (MaybeFire(faults_, FaultKind::kAxisStall, name_, now) && target != here) {
+    const double t = now + 0.5 * (move.EndTime() - now);
+    if (!hard_stop_ || t < hard_stop_->time)
+      hard_stop_ = HardStop{t, move.PositionAt(t), kAlarmPositionDeviation};
+  }
 }
 
 void SimulatedAxis::Refresh() {
   const double now = clock_.Now();
-  const bool moving = now < move_.EndTime();
+  if (hard_stop_ && now >= hard_stop_->time) {  // the stop happened: rest there, in alarm
+    const HardStop hs = *hard_stop_;
+    NewMove(hs.time, TrapezoidalMove(hs.time, hs.position, hs.position, 1, 1, 1));
+    alarm_ = hs.alarm;
+    homing_ = false;
+  }
+  if (auto e = MaybeFire(faults_, FaultKind::kAxisAlarm, name_, now)) {
+    alarm_ = e->code ? e->code : kAlarmOverload;
+    Stop();
+  }
+  const bool moving = MovingAt(now);
   const bool settled = now >= move_.EndTime() + o_.settle_s;
   if (homing_ && !moving) {
     homing_ = false;
     homed_ = true;
   }
-  const double pos = move_.PositionAt(now);
+  const double pos = MotorAt(now);
   std::uint32_t out = 0;
   if (homed_ && !moving && std::abs(pos) < 0.5) out |= kOutHomeEnd;
   if (!alarm_ && !moving) out |= kOutReady;
   if (alarm_) out |= kOutAlarm;
   if (moving) out |= kOutBusy | kOutMove;
   if (settled && !alarm_) out |= kOutInPos;
+  if (o_.limit_switches && pos >= o_.limit_max_steps) out |= kOutLimitPlus;
+  if (o_.limit_switches && pos <= o_.limit_min_steps) out |= kOutLimitMinus;
   Set32(kOutputStatus, out);
   Set32(kPresentAlarm, alarm_);
   Set32(kCommandPosition, static_cast<std::uint32_t>(static_cast<std::int32_t>(std::lround(pos))));

@@ -9,7 +9,11 @@
 #include <cstdint>
 #include <mutex>
 
+#include <optional>
+#include <string>
+
 #include "sim/clock.h"
+#include "sim/faults/fault_plan.h"
 #include "sim/stage/motion.h"
 
 namespace gonio::sim {
@@ -39,14 +43,19 @@ inline constexpr std::uint32_t kInStop = 1u << 5;   // decelerate to a stop
 inline constexpr std::uint32_t kInAlarmReset = 1u << 7;
 
 // Output status bits (kOutputStatus, lower word).
-inline constexpr std::uint32_t kOutHomeEnd = 1u << 4;  // homed since power-up, and at home
-inline constexpr std::uint32_t kOutReady = 1u << 5;    // accepts a new operation
-inline constexpr std::uint32_t kOutAlarm = 1u << 7;    // ALM-A: an alarm is present
-inline constexpr std::uint32_t kOutBusy = 1u << 8;     // SYS-BSY: an operation is under way
-inline constexpr std::uint32_t kOutMove = 1u << 13;    // the motor is moving
-inline constexpr std::uint32_t kOutInPos = 1u << 14;   // settled within the in-position band
+inline constexpr std::uint32_t kOutHomeEnd = 1u << 4;      // homed since power-up, and at home
+inline constexpr std::uint32_t kOutReady = 1u << 5;        // accepts a new operation
+inline constexpr std::uint32_t kOutAlarm = 1u << 7;        // ALM-A: an alarm is present
+inline constexpr std::uint32_t kOutBusy = 1u << 8;         // SYS-BSY: an operation is under way
+inline constexpr std::uint32_t kOutMove = 1u << 13;        // the motor is moving
+inline constexpr std::uint32_t kOutInPos = 1u << 14;       // settled within the in-position band
+inline constexpr std::uint32_t kOutLimitPlus = 1u << 10;   // +LS: the + limit switch is pressed
+inline constexpr std::uint32_t kOutLimitMinus = 1u << 11;  // -LS: the - limit switch is pressed
 
 // Alarm codes (kPresentAlarm), after the AZ family's.
+inline constexpr std::uint32_t kAlarmPositionDeviation = 0x10;   // the motor stalled
+inline constexpr std::uint32_t kAlarmOverload = 0x30;            // the fault plan's default alarm
+inline constexpr std::uint32_t kAlarmHardwareOvertravel = 0x66;  // a limit switch was hit
 inline constexpr std::uint32_t kAlarmSoftwareOvertravel = 0x67;
 inline constexpr std::uint32_t kAlarmBadData = 0x70;  // operation data out of range
 }  // namespace stage_reg
@@ -57,13 +66,25 @@ struct AxisOptions {
   double home_speed = 2000;  // steps/s for ZHOME
   double home_acceleration = 20000;
   double settle_s = 0.05;  // IN-POS after the profile ends plus this settling time
+  // Limit switches (steps): reaching one stops the motor at once with alarm 0x66. Real stages put
+  // them just beyond the software limits; a profile whose soft limits are wider than its switches
+  // (or a stage without soft limits) meets them.
+  bool limit_switches = false;
+  std::int32_t limit_min_steps = -210'000, limit_max_steps = 210'000;
+  // Lost motion in the gearing (steps): the stage (load) lags the motor by up to this much after
+  // a reversal. The encoder (0x00C6) reads the motor; the camera sees the load. A driver that
+  // always approaches from the same side sees a constant offset instead of a hysteresis.
+  double backlash_steps = 0;
 };
 
 // Thread-safe: the protocol server's thread writes and reads registers while the camera's
 // firmware reads positions.
 class SimulatedAxis {
  public:
-  SimulatedAxis(const Clock& clock, AxisOptions options = {});
+  // `name` (the axis role) is how the fault plan targets this axis; the plan may be null and must
+  // outlive the axis.
+  SimulatedAxis(const Clock& clock, AxisOptions options = {}, std::string name = {},
+                FaultPlan* faults = nullptr);
 
   // Register access for the protocol layer. Addresses outside [0, kCount) are the caller's
   // Modbus "illegal data address" and never reach here.
@@ -77,8 +98,12 @@ class SimulatedAxis {
 
   // Whether a profile is still running at the clock's now.
   bool Moving() const;
-  // Where the motor is now (steps, fractional during a move): what the scene's camera sees.
+  // Where the stage (load) is now, steps, fractional during a move and after backlash: what the
+  // scene's camera sees.
   double PositionSteps() const;
+  // Where the motor is (what the encoder reads).
+  double MotorSteps() const;
+  const std::string& name() const { return name_; }
 
  private:
   std::uint32_t Get32(std::uint16_t a) const {
@@ -93,14 +118,32 @@ class SimulatedAxis {
   void Home();
   void Stop();
   void Alarm(std::uint32_t code);
+  // Replaces the motion from `now` on, carrying the load's backlash state over.
+  void NewMove(double now, const TrapezoidalMove& move);
+  // Where the motor is at t, and whether it moves, with a pending hard stop (a limit switch or a
+  // stall) in effect from its time on; the load behind its backlash.
+  double MotorAt(double t) const;
+  bool MovingAt(double t) const;
+  double LoadAt(double t) const;
+
+  struct HardStop {
+    double time, position;
+    std::uint32_t alarm;
+  };
 
   mutable std::mutex mu_;
   const Clock& clock_;
   AxisOptions o_;
+  std::string name_;
+  FaultPlan* faults_;
   std::array<std::uint16_t, stage_reg::kCount> regs_{};
   TrapezoidalMove move_;
-  bool homed_ = false, homing_ = false;
+  double load_anchor_ = 0;  // the load at the start of move_
+  // Known when the move starts (a switch on the path, a stall drawn by the fault plan); becomes
+  // an alarm at the first register access after its time.
+  std::optional<HardStop> hard_stop_;
   std::uint32_t alarm_ = 0;
+  bool homed_ = false, homing_ = false;
 };
 
 }  // namespace gonio::sim

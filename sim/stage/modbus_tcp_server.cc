@@ -12,12 +12,16 @@
 #include <cstring>
 #include <string>
 
+#include "sim/stage/modbus_reply.h"
+
 namespace gonio::sim {
 
 Result<std::unique_ptr<StageModbusTcpServer>> StageModbusTcpServer::Start(
-    std::vector<SimulatedAxis*> axes, int port) {
+    std::vector<SimulatedAxis*> axes, int port, FaultPlan* faults, const Clock* clock) {
   std::unique_ptr<StageModbusTcpServer> s(new StageModbusTcpServer());
   s->axes_ = std::move(axes);
+  s->faults_ = faults;
+  s->clock_ = clock;
   modbus_t* ctx = modbus_new_tcp("127.0.0.1", port);  // loopback only, never all interfaces
   if (!ctx) return Error{ErrorCode::kIo, std::string("modbus_new_tcp: ") + modbus_strerror(errno)};
   s->ctx_ = ctx;
@@ -48,7 +52,6 @@ void StageModbusTcpServer::Loop() {
   const int header = modbus_get_header_length(ctx);  // 7 for TCP: ..., unit id
   std::vector<int> clients;
   std::uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
-  std::uint16_t regs[stage_reg::kCount];
   while (!stop_) {
     fd_set rd;
     FD_ZERO(&rd);
@@ -74,26 +77,20 @@ void StageModbusTcpServer::Loop() {
         continue;
       }
       if (rc > 0) {
-        const int unit = query[header - 1], fc = query[header];
-        const int address = (query[header + 1] << 8) | query[header + 2];
+        const int unit = query[header - 1];
         if (unit < 1 || unit > static_cast<int>(axes_.size())) {
           modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_GATEWAY_TARGET);
         } else {
           SimulatedAxis* axis = axes_[unit - 1];
-          axis->Snapshot(regs);
-          std::copy(regs, regs + stage_reg::kCount, map->tab_registers);
-          const int replied = modbus_reply(ctx, query, rc, map);
-          // A successful write: hand the written registers to the axis, which acts on them.
-          if (replied > 0 && address < stage_reg::kCount) {
-            if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER) {
-              axis->Write(static_cast<std::uint16_t>(address), &map->tab_registers[address], 1);
-            } else if (fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS) {
-              const int count = (query[header + 3] << 8) | query[header + 4];
-              if (address + count <= stage_reg::kCount)
-                axis->Write(static_cast<std::uint16_t>(address), &map->tab_registers[address],
-                            count);
-            }
+          const double now = clock_ ? clock_->Now() : 0;
+          if (MaybeFire(faults_, FaultKind::kModbusDrop, axis->name(), now)) {
+            close(*it);  // the fault plan: the controller drops the connection unanswered
+            it = clients.erase(it);
+            continue;
           }
+          // The fault plan: no reply at all; the client's response timeout expires.
+          if (!MaybeFire(faults_, FaultKind::kModbusTimeout, axis->name(), now))
+            ReplyForAxis(ctx, map, *axis, query, rc, header);
         }
       }
       ++it;

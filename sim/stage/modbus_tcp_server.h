@@ -11,6 +11,8 @@
 #include <vector>
 
 #include "common/result.h"
+#include "sim/clock.h"
+#include "sim/faults/fault_plan.h"
 #include "sim/stage/axis.h"
 
 namespace gonio::sim {
@@ -18,9 +20,13 @@ namespace gonio::sim {
 class StageModbusTcpServer {
  public:
   // Binds 127.0.0.1:port (0: the OS picks a free port, see port()) and serves on its own thread
-  // until destroyed. The axes must outlive the server; only the server thread touches them.
+  // until destroyed. The axes (and the fault plan and clock, when given) must outlive the server.
+  // Faults (per request, targeted by axis name): modbus_timeout (no reply), modbus_drop (the
+  // connection is closed).
   static Result<std::unique_ptr<StageModbusTcpServer>> Start(std::vector<SimulatedAxis*> axes,
-                                                             int port = 0);
+                                                             int port = 0,
+                                                             FaultPlan* faults = nullptr,
+                                                             const Clock* clock = nullptr);
   ~StageModbusTcpServer();  // stops and joins within ~50 ms
   StageModbusTcpServer(const StageModbusTcpServer&) = delete;
   StageModbusTcpServer& operator=(const StageModbusTcpServer&) = delete;
@@ -32,6 +38,8 @@ class StageModbusTcpServer {
   void Loop();
 
   std::vector<SimulatedAxis*> axes_;
+  FaultPlan* faults_ = nullptr;
+  const Clock* clock_ = nullptr;
   void* ctx_ = nullptr;  // modbus_t*, kept opaque so the header needs no libmodbus
   int listen_fd_ = -1;
   int port_ = 0;

@@ -1,10 +1,13 @@
 // gonio-sim: serves the simulated instrument on loopback until interrupted - the rotation stages
-// over Modbus TCP (docs/stage_register_map.md) and the cooled CCD over GigE Vision
-// (docs/camera_features.md), looking at the sample of the config file through the bench's scene.
+// over Modbus TCP and, optionally, Modbus RTU on a pty (docs/stage_register_map.md), the cooled
+// CCD over GigE Vision (docs/camera_features.md), and the source monitor over the USBTMC socket
+// transport (docs/source_monitor.md), looking at the sample of the config file through the
+// bench's scene, with the config's fault plan.
 //
-//   gonio-sim                                 # defaults: 3 axes on :5020, camera on 127.0.0.1
+//   gonio-sim                                 # defaults: 3 axes on :5020, camera, monitor :5021
 //   gonio-sim --config config/sim.toml        # every key documented in that example
 //   gonio-sim --port 0 --port-file p.txt      # the OS picks the Modbus port; scripts read p.txt
+//   gonio-sim --rtu-link /tmp/gonio-rtu       # Modbus RTU too, on a pty linked there
 #include <CLI/CLI.hpp>
 #include <atomic>
 #include <chrono>
@@ -15,8 +18,12 @@
 
 #include "sim/camera/camera.h"
 #include "sim/clock.h"
+#include "sim/faults/fault_plan.h"
+#include "sim/monitor/monitor_server.h"
+#include "sim/monitor/power_meter.h"
 #include "sim/sim_config.h"
 #include "sim/stage/axis.h"
+#include "sim/stage/modbus_rtu_server.h"
 #include "sim/stage/modbus_tcp_server.h"
 #include "sim/truth/ground_truth.h"
 
@@ -28,8 +35,8 @@ void OnSignal(int) { g_stop = true; }
 int main(int argc, char** argv) {
   using namespace gonio::sim;
   CLI::App app{"Simulated gonioreflectometer devices on 127.0.0.1"};
-  std::string config_path, port_file;
-  int port = -1;
+  std::string config_path, port_file, rtu_link;
+  int port = -1, monitor_port = -1;
   double speed = 0;
   bool no_camera = false;
   app.add_option("--config", config_path, "TOML file (config/sim.toml documents every key)")
@@ -40,6 +47,10 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   app.add_flag("--no-camera", no_camera, "serve the stages only (GVCP port 3956 left free)");
   app.add_option("--port-file", port_file, "write the chosen Modbus port to this file");
+  app.add_option("--rtu-link", rtu_link, "serve Modbus RTU on a pty too, symlinked at this path");
+  app.add_option("--monitor-port", monitor_port,
+                 "source monitor socket on 127.0.0.1, 0: any free port (overrides)")
+      ->check(CLI::Range(0, 65535));
   CLI11_PARSE(app, argc, argv);
 
   SimConfig cfg = DefaultSimConfig();
@@ -54,20 +65,38 @@ int main(int argc, char** argv) {
   if (port >= 0) cfg.modbus_port = port;
   if (speed > 0) cfg.clock_speed = speed;
   if (no_camera) cfg.camera_enabled = false;
+  if (!rtu_link.empty()) cfg.rtu_link = rtu_link;
+  if (monitor_port >= 0) cfg.monitor_port = monitor_port;
 
+  auto fail = [](const gonio::Error& e) {
+    std::cerr << "gonio-sim: error: " << e.message << "\n";
+    return 1;
+  };
   ScaledClock clock(cfg.clock_speed);
+  FaultPlan plan(cfg.faults, cfg.fault_seed);
   std::vector<std::unique_ptr<SimulatedAxis>> owned;
   std::vector<SimulatedAxis*> raw;
   for (const AxisConfig& a : cfg.axes) {
-    owned.push_back(std::make_unique<SimulatedAxis>(clock, a.options));
+    owned.push_back(std::make_unique<SimulatedAxis>(clock, a.options, a.role, &plan));
     raw.push_back(owned.back().get());
   }
-  auto server = StageModbusTcpServer::Start(raw, cfg.modbus_port);
-  if (!server) {
-    std::cerr << "gonio-sim: error: " << server.error().message << "\n";
-    return 1;
+  auto server = StageModbusTcpServer::Start(raw, cfg.modbus_port, &plan, &clock);
+  if (!server) return fail(server.error());
+  std::unique_ptr<StageModbusRtuServer> rtu;
+  if (!cfg.rtu_link.empty()) {
+    auto r = StageModbusRtuServer::Start(raw, cfg.rtu_link, &plan, &clock);
+    if (!r) return fail(r.error());
+    rtu = std::move(r).value();
   }
   const Lamp lamp(cfg.lamp, cfg.seed);
+  std::unique_ptr<SimulatedPowerMeter> meter;
+  std::unique_ptr<MonitorSocketServer> monitor;
+  if (cfg.monitor_enabled) {
+    meter = std::make_unique<SimulatedPowerMeter>(clock, lamp, cfg.monitor, cfg.seed, &plan);
+    auto m = MonitorSocketServer::Start(*meter, cfg.monitor_port);
+    if (!m) return fail(m.error());
+    monitor = std::move(m).value();
+  }
   const Scene scene(cfg.bench, MicrofacetTruth(cfg.sample_model, cfg.sample_alpha, cfg.sample_eta),
                     cfg.scene);
   std::unique_ptr<SimulatedCamera> camera;
@@ -77,11 +106,8 @@ int main(int argc, char** argv) {
       for (const SimulatedAxis* a : raw) steps.push_back(a->PositionSteps());
       return AnglesFromSteps(cfg.axes, steps);
     };
-    auto cam = SimulatedCamera::StartGigE(clock, scene, angles, lamp, cfg.camera);
-    if (!cam) {
-      std::cerr << "gonio-sim: error: " << cam.error().message << "\n";
-      return 1;
-    }
+    auto cam = SimulatedCamera::StartGigE(clock, scene, angles, lamp, cfg.camera, &plan);
+    if (!cam) return fail(cam.error());
     camera = std::move(cam).value();
   }
   std::signal(SIGINT, OnSignal);
@@ -89,12 +115,27 @@ int main(int argc, char** argv) {
   if (!port_file.empty()) std::ofstream(port_file) << (*server)->port() << "\n";
   std::cout << "gonio-sim: stage controller (" << cfg.axes.size() << " axes, unit ids 1.."
             << cfg.axes.size() << ") on Modbus TCP 127.0.0.1:" << (*server)->port();
+  if (rtu) std::cout << " and Modbus RTU " << rtu->pty_path() << " (" << cfg.rtu_link << ")";
   if (camera)
     std::cout << "; camera " << cfg.camera.serial << " on GigE Vision " << cfg.camera.address;
-  std::cout << "; sample " << scene.truth().Name() << "; clock x" << cfg.clock_speed
-            << "; Ctrl-C stops" << std::endl;
-  while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  if (monitor) std::cout << "; source monitor on 127.0.0.1:" << monitor->port();
+  std::cout << "; sample " << scene.truth().Name() << "; clock x" << cfg.clock_speed;
+  if (!plan.empty()) std::cout << "; " << cfg.faults.size() << " planned fault(s)";
+  std::cout << "; Ctrl-C stops" << std::endl;
+  std::size_t reported = 0;
+  while (!g_stop) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    const auto fired = plan.Fired();  // the operator sees each injected fault as it happens
+    for (; reported < fired.size(); ++reported) {
+      const FiredFault& f = fired[reported];
+      std::cout << "gonio-sim: fault " << ToString(f.kind)
+                << (f.target.empty() ? "" : " on " + f.target) << " at t=" << f.time_s << " s"
+                << std::endl;
+    }
+  }
   camera.reset();  // stop the GigE camera before the stages it reads
+  monitor.reset();
+  rtu.reset();
   std::cout << "gonio-sim: stopped" << std::endl;
   return 0;
 }

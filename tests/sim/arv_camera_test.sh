@@ -6,7 +6,7 @@ set -euo pipefail
 sim=$1 work=$2
 mkdir -p "$work"
 rm -f "$work/port"
-"$sim" --port 0 --port-file "$work/port" --speed 20 > "$work/sim.log" 2>&1 &
+"$sim" --port 0 --monitor-port 0 --port-file "$work/port" --speed 20 > "$work/sim.log" 2>&1 &
 pid=$!
 trap 'kill $pid 2>/dev/null || true' EXIT
 for _ in $(seq 100); do [[ -s "$work/port" ]] && break; sleep 0.05; done

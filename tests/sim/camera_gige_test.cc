@@ -4,11 +4,16 @@
 #include <arv.h>
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <memory>
+#include <thread>
+#include <vector>
 
+#include "drivers/monitor/scpi_power_meter.h"
 #include "fitting/optics/microfacet.h"
 #include "sim/camera/camera.h"
+#include "sim/monitor/power_meter.h"
 #include "sim/truth/ground_truth.h"
 
 namespace gonio::sim {
@@ -20,14 +25,22 @@ struct ArvCameraDeleter {
 
 class CameraGigETest : public ::testing::Test {
  protected:
+  // Variants: a test fixture may drift the lamp or plan faults.
+  virtual LampOptions LampOpts() {
+    return LampOptions{.drift_per_hour = 0, .wander_amplitude = 0, .flicker_rms = 0};
+  }
+  virtual std::vector<FaultEvent> Faults() { return {}; }
+
   void SetUp() override {
+    lamp_ = std::make_unique<Lamp>(LampOpts());
+    plan_ = std::make_unique<FaultPlan>(Faults(), 1);
     truth_ = MicrofacetTruth("beckmann", 0.344, 1.51);
     scene_ = std::make_unique<Scene>(BenchGeometry{}, truth_);
     CameraOptions o;
     o.sensor.sensor_width = o.sensor.sensor_height = 256;
     o.sensor.mm_per_pixel = 0.32;
     auto cam = SimulatedCamera::StartGigE(
-        clock_, *scene_, [this] { return angles_; }, lamp_, o);
+        clock_, *scene_, [this] { return angles_; }, *lamp_, o, plan_.get());
     ASSERT_TRUE(cam.ok()) << cam.error().message;
     camera_ = std::move(cam).value();
     GError* error = nullptr;
@@ -35,8 +48,9 @@ class CameraGigETest : public ::testing::Test {
     ASSERT_EQ(error, nullptr) << error->message;
   }
 
-  // One triggered frame; returns its pixels (empty on timeout).
-  cv::Mat1w Snap(double exposure_us, int timeout_ms = 3000) {
+  // One triggered frame; returns its pixels (empty on timeout or a failed buffer, whose status
+  // goes to *status; ARV_BUFFER_STATUS_UNKNOWN when no buffer came back at all).
+  cv::Mat1w Snap(double exposure_us, int timeout_ms = 3000, ArvBufferStatus* status = nullptr) {
     GError* e = nullptr;
     arv_camera_set_exposure_time(client_.get(), exposure_us, &e);
     EXPECT_EQ(e, nullptr);
@@ -45,6 +59,8 @@ class CameraGigETest : public ::testing::Test {
     EXPECT_EQ(e, nullptr);
     ArvStream* stream = arv_camera_create_stream(client_.get(), nullptr, nullptr, &e);
     EXPECT_EQ(e, nullptr);
+    // Lost packets stay lost (the fake camera does not resend): an incomplete frame is reported.
+    g_object_set(stream, "packet-resend", ARV_GV_STREAM_PACKET_RESEND_NEVER, nullptr);
     const guint payload = arv_camera_get_payload(client_.get(), &e);
     for (int k = 0; k < 2; ++k) arv_stream_push_buffer(stream, arv_buffer_new(payload, nullptr));
     arv_camera_start_acquisition(client_.get(), &e);
@@ -52,6 +68,7 @@ class CameraGigETest : public ::testing::Test {
     EXPECT_EQ(e, nullptr);
     ArvBuffer* b = arv_stream_timeout_pop_buffer(stream, timeout_ms * 1000);
     cv::Mat1w out;
+    if (status != nullptr) *status = b ? arv_buffer_get_status(b) : ARV_BUFFER_STATUS_UNKNOWN;
     if (b != nullptr && arv_buffer_get_status(b) == ARV_BUFFER_STATUS_SUCCESS) {
       std::size_t size = 0;
       const void* data = arv_buffer_get_data(b, &size);
@@ -66,7 +83,8 @@ class CameraGigETest : public ::testing::Test {
   }
 
   ScaledClock clock_{20.0};
-  Lamp lamp_{LampOptions{.drift_per_hour = 0, .wander_amplitude = 0, .flicker_rms = 0}};
+  std::unique_ptr<Lamp> lamp_;
+  std::unique_ptr<FaultPlan> plan_;
   std::shared_ptr<const GroundTruth> truth_;
   std::unique_ptr<Scene> scene_;
   StageAngles angles_{0, 180, 0};
@@ -133,6 +151,65 @@ TEST_F(CameraGigETest, DroppedFrameTimesOutAtTheClient) {
   camera_->DropFrames(1);
   EXPECT_TRUE(Snap(10000, 800).empty());
   EXPECT_FALSE(Snap(10000).empty());  // the next one arrives
+}
+
+class CameraGigEFaults : public CameraGigETest {
+ protected:
+  std::vector<FaultEvent> Faults() override {
+    return {OnOpportunity(FaultKind::kFrameIncomplete, 1), OnOpportunity(FaultKind::kFrameDrop, 3),
+            AtTime(FaultKind::kCoolerFail, 0)};
+  }
+};
+
+TEST_F(CameraGigEFaults, FaultPlanFramesArriveIncompleteOrNeverAndTheCoolerFails) {
+  ArvBufferStatus status = ARV_BUFFER_STATUS_SUCCESS;
+  // Frame 1: packets lost. Aravis hands the buffer back failed: missing packets, or (as here,
+  // with resend off) its frame-retention time expired before the frame completed.
+  EXPECT_TRUE(Snap(10000, 1500, &status).empty());
+  EXPECT_TRUE(status == ARV_BUFFER_STATUS_MISSING_PACKETS || status == ARV_BUFFER_STATUS_TIMEOUT)
+      << status;
+  EXPECT_FALSE(Snap(10000, 3000, &status).empty());  // frame 2: whole again
+  EXPECT_TRUE(Snap(10000, 800, &status).empty());    // frame 3: never leaves: no buffer at all
+  EXPECT_EQ(status, ARV_BUFFER_STATUS_UNKNOWN);
+  // The cooler failed at t = 0: switched on, it does not cool.
+  GError* e = nullptr;
+  ArvDevice* dev = arv_camera_get_device(client_.get());
+  arv_device_set_string_feature_value(dev, "SensorTemperatureControlMode", "On", &e);
+  ASSERT_EQ(e, nullptr);
+  const double t0 = clock_.Now();
+  while (clock_.Now() - t0 < 20) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_GT(arv_device_get_float_feature_value(dev, "DeviceTemperature", &e), 19.0);
+  EXPECT_EQ(plan_->Fired().size(), 3u);
+}
+
+// The lamp's drift reaches both the camera's frames and the source monitor, in proportion: what
+// monitor normalisation (#6) corrects. A lamp drifting 20 %/min makes it visible within seconds.
+class CameraGigEDriftingLamp : public CameraGigETest {
+ protected:
+  LampOptions LampOpts() override {
+    return LampOptions{.drift_per_hour = 12, .wander_amplitude = 0, .flicker_rms = 0};
+  }
+};
+
+TEST_F(CameraGigEDriftingLamp, FramesAndMonitorFollowTheLampTogether) {
+  SimulatedPowerMeter meter_device(clock_, *lamp_);
+  drivers::ScpiPowerMeter meter(meter_device);
+  const cv::Rect rect(120, 120, 16, 16);
+  const double bias = camera_->sensor().options().bias_adu;
+  const cv::Mat1w a = Snap(200000);
+  auto pa = meter.PowerW();
+  const double t0 = clock_.Now();
+  while (clock_.Now() - t0 < 30) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  const cv::Mat1w b = Snap(200000);
+  auto pb = meter.PowerW();
+  ASSERT_FALSE(a.empty());
+  ASSERT_FALSE(b.empty());
+  ASSERT_TRUE(pa.ok() && pb.ok());
+  const double frame_ratio = (cv::mean(b(rect))[0] - bias) / (cv::mean(a(rect))[0] - bias);
+  const double monitor_ratio = *pb / *pa;
+  EXPECT_GT(monitor_ratio, 1.08);  // 30 s at 20 %/min, at least
+  // The frame sees the exposure's mean, the monitor the instant after: within 1.5 %.
+  EXPECT_NEAR(frame_ratio / monitor_ratio, 1.0, 0.015);
 }
 
 }  // namespace

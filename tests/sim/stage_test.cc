@@ -4,8 +4,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <memory>
+#include <vector>
 
 #include "sim/clock.h"
+#include "sim/faults/fault_plan.h"
 #include "sim/stage/axis.h"
 #include "sim/stage/motion.h"
 
@@ -136,6 +139,135 @@ TEST_F(Axis, StopDeceleratesAndANewOperationDuringMotionIsIgnored) {
   EXPECT_FALSE(Status(kOutMove));
   // Stopped at 3500 + 2000^2 / (2 * 4000) = 4000 steps.
   EXPECT_EQ(static_cast<std::int32_t>(Read32(kCommandPosition)), 4000);
+}
+
+// An axis with its own options and an optional fault plan, driven through its registers.
+class AxisWith : public Axis {
+ protected:
+  void Make(AxisOptions o, FaultPlan* plan = nullptr) {
+    other = std::make_unique<SimulatedAxis>(clock, o, "sample", plan);
+  }
+  void Move(std::int32_t target) {
+    const std::uint32_t v[8] = {0,    1, static_cast<std::uint32_t>(target), 4000, 40000, 40000,
+                                1000, 1};
+    std::uint16_t w[16];
+    for (int k = 0; k < 8; ++k) {
+      w[2 * k] = static_cast<std::uint16_t>(v[k] >> 16);
+      w[2 * k + 1] = static_cast<std::uint16_t>(v[k] & 0xFFFF);
+    }
+    other->Write(kDirectData, w, 16);
+  }
+  std::uint32_t Reg32(std::uint16_t a) {
+    return (std::uint32_t(other->Read(a)) << 16) | other->Read(a + 1);
+  }
+  std::unique_ptr<SimulatedAxis> other;
+};
+
+TEST_F(AxisWith, LimitSwitchStopsTheMotorDeadThereWithAlarm66) {
+  AxisOptions o;
+  o.min_steps = -500'000;  // soft limits wider than the switches: a misconfigured profile
+  o.max_steps = 500'000;
+  o.limit_switches = true;
+  o.limit_max_steps = 20'000;
+  Make(o);
+  Move(30'000);  // 4000 steps/s: reaches the switch 0.1 s + (20000 - 200) / 4000 s later
+  clock.Advance(4.0);
+  EXPECT_TRUE(Reg32(kOutputStatus) & kOutMove);
+  clock.Advance(1.2);  // 5.2 s > 5.05 s
+  EXPECT_EQ(Reg32(kPresentAlarm), kAlarmHardwareOvertravel);
+  EXPECT_TRUE(Reg32(kOutputStatus) & kOutLimitPlus);
+  EXPECT_FALSE(Reg32(kOutputStatus) & kOutMove);
+  EXPECT_EQ(static_cast<std::int32_t>(Reg32(kCommandPosition)), 20'000);
+  clock.Advance(10);  // it stays there: no deceleration ramp past the switch
+  EXPECT_NEAR(other->MotorSteps(), 20'000, 1e-6);
+  // Reset, then only a move back off the switch goes anywhere.
+  const std::uint16_t one[2] = {0, 1};
+  other->Write(kAlarmReset, one, 2);
+  Move(25'000);
+  clock.Advance(1);
+  EXPECT_EQ(Reg32(kPresentAlarm), kAlarmHardwareOvertravel);
+  other->Write(kAlarmReset, one, 2);
+  Move(10'000);
+  clock.Advance(5);
+  EXPECT_EQ(static_cast<std::int32_t>(Reg32(kCommandPosition)), 10'000);
+  EXPECT_FALSE(Reg32(kOutputStatus) & kOutLimitPlus);
+}
+
+TEST_F(AxisWith, BacklashIsAHysteresisThatOneSidedApproachTurnsIntoAnOffset) {
+  AxisOptions o;
+  o.backlash_steps = 40;
+  Make(o);
+  Move(5000);  // from below
+  clock.Advance(5);
+  const double from_below = other->PositionSteps();
+  EXPECT_EQ(static_cast<std::int32_t>(Reg32(kCommandPosition)), 5000);  // the encoder: the motor
+  Move(9000);
+  clock.Advance(5);
+  Move(5000);  // from above
+  clock.Advance(5);
+  const double from_above = other->PositionSteps();
+  EXPECT_NEAR(from_above - from_below, 40, 1e-9);
+  // Always from below (overshoot by more than the backlash, then come back up): repeatable.
+  Move(4000);
+  clock.Advance(5);
+  Move(5000);
+  clock.Advance(5);
+  EXPECT_NEAR(other->PositionSteps(), from_below, 1e-9);
+  EXPECT_NEAR(from_below, 5000 - 20, 1e-9);
+}
+
+TEST_F(AxisWith, FaultPlanStallRaisesPositionDeviationPartWay) {
+  FaultPlan plan({OnOpportunity(FaultKind::kAxisStall, 2)}, 1);
+  Make({}, &plan);
+  Move(4000);  // opportunity 1: moves fine
+  clock.Advance(3);
+  EXPECT_EQ(static_cast<std::int32_t>(Reg32(kCommandPosition)), 4000);
+  Move(12'000);  // opportunity 2: 2.1 s profile, stalls at its middle (8000)
+  clock.Advance(3);
+  EXPECT_EQ(Reg32(kPresentAlarm), kAlarmPositionDeviation);
+  EXPECT_NEAR(other->MotorSteps(), 8000, 1);
+  ASSERT_EQ(plan.Fired().size(), 1u);
+  EXPECT_EQ(plan.Fired()[0].kind, FaultKind::kAxisStall);
+}
+
+TEST_F(AxisWith, FaultPlanAlarmAtATimeStopsTheAxis) {
+  FaultEvent alarm = AtTime(FaultKind::kAxisAlarm, 1.0);
+  alarm.code = 0x42;
+  FaultPlan plan({alarm}, 1);
+  Make({}, &plan);
+  Move(12'000);
+  clock.Advance(0.5);
+  EXPECT_EQ(Reg32(kPresentAlarm), 0u);
+  clock.Advance(0.6);
+  EXPECT_EQ(Reg32(kPresentAlarm), 0x42u);
+  clock.Advance(5);
+  EXPECT_LT(other->MotorSteps(), 12'000);  // stopped short of the target
+  EXPECT_FALSE(Reg32(kOutputStatus) & kOutReady);
+}
+
+TEST(FaultPlan, ProbabilisticEventsAreDeterministicUnderTheSeedAndBounded) {
+  auto run = [](std::uint64_t seed) {
+    FaultPlan plan({WithProbability(FaultKind::kModbusTimeout, 0.1, 50)}, seed);
+    std::vector<int> hits;
+    for (int i = 0; i < 1000; ++i)
+      if (plan.Fire(FaultKind::kModbusTimeout, "arm", i)) hits.push_back(i);
+    return hits;
+  };
+  const auto a = run(7), b = run(7), c = run(8);
+  EXPECT_EQ(a, b);
+  EXPECT_NE(a, c);
+  // About 10 % of the opportunities until the count of 50 is used up.
+  EXPECT_EQ(a.size(), 50u);
+  EXPECT_GT(a.back(), 300);
+  EXPECT_LT(a.back(), 800);
+}
+
+TEST(FaultPlan, TargetsOnlyTheNamedDeviceAndKind) {
+  FaultPlan plan({OnOpportunity(FaultKind::kModbusCrc, 1, "arm")}, 1);
+  EXPECT_FALSE(plan.Fire(FaultKind::kModbusCrc, "sample", 0));
+  EXPECT_FALSE(plan.Fire(FaultKind::kModbusTimeout, "arm", 0));
+  EXPECT_TRUE(plan.Fire(FaultKind::kModbusCrc, "arm", 0));
+  EXPECT_FALSE(plan.Fire(FaultKind::kModbusCrc, "arm", 0));  // count 1
 }
 
 }  // namespace

@@ -1,0 +1,48 @@
+// The byte level below the USBTMC framing: one bulk-out and one bulk-in endpoint and the class's
+// control requests, as libusb presents a USBTMC interface (USBTMC 1.0, sections 3 and 4). The
+// libusb backend implements it for a real meter; the simulated meter (sim/monitor) implements it
+// in-process, because libusb cannot present a fake device. The framing (usbtmc.h) is the same
+// code over either.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "common/result.h"
+
+namespace gonio::drivers {
+
+// USBTMC class-specific requests (bRequest), USBTMC 1.0 table 15.
+namespace usbtmc_request {
+inline constexpr std::uint8_t kInitiateAbortBulkOut = 1;
+inline constexpr std::uint8_t kCheckAbortBulkOutStatus = 2;
+inline constexpr std::uint8_t kInitiateAbortBulkIn = 3;
+inline constexpr std::uint8_t kCheckAbortBulkInStatus = 4;
+inline constexpr std::uint8_t kInitiateClear = 5;
+inline constexpr std::uint8_t kCheckClearStatus = 6;
+inline constexpr std::uint8_t kGetCapabilities = 7;
+}  // namespace usbtmc_request
+
+// USBTMC_status values (USBTMC 1.0 table 16).
+inline constexpr std::uint8_t kUsbTmcStatusSuccess = 0x01;
+inline constexpr std::uint8_t kUsbTmcStatusPending = 0x02;
+inline constexpr std::uint8_t kUsbTmcStatusFailed = 0x80;
+
+class UsbTmcTransport {
+ public:
+  virtual ~UsbTmcTransport() = default;
+  // One bulk-out transfer of n bytes. Errors: kTimeout, kNotConnected (the device left the bus),
+  // kIo.
+  virtual Status BulkOut(const std::uint8_t* data, std::size_t n, int timeout_ms) = 0;
+  // One bulk-in transfer of at most `capacity` bytes; the bytes received. Errors as BulkOut.
+  virtual Result<std::size_t> BulkIn(std::uint8_t* data, std::size_t capacity, int timeout_ms) = 0;
+  // A class request to the interface (or the bulk-in/out endpoint for the abort requests): the
+  // device's response of at most `length` bytes (its first byte a USBTMC_status).
+  virtual Result<std::vector<std::uint8_t>> ClassRequest(std::uint8_t request, std::uint16_t value,
+                                                         std::uint16_t length, int timeout_ms) = 0;
+  // After kNotConnected: find the device again (same vendor, product and serial) and claim it.
+  virtual Status Reopen() = 0;
+};
+
+}  // namespace gonio::drivers

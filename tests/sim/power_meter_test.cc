@@ -1,0 +1,160 @@
+// The simulated source monitor under the driver's own USBTMC framing and SCPI meter
+// (drivers/monitor): the bytes on the bulk endpoints, the SCPI command set and error queue, a
+// timed-out read recovered by the class abort request, a disconnect and reopen from the fault
+// plan, and readings that follow the lamp.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+#include "drivers/monitor/scpi_power_meter.h"
+#include "drivers/monitor/usbtmc.h"
+#include "drivers/monitor/usbtmc_socket.h"
+#include "sim/clock.h"
+#include "sim/monitor/monitor_server.h"
+#include "sim/monitor/power_meter.h"
+
+namespace gonio::sim {
+namespace {
+
+using drivers::ScpiPowerMeter;
+using drivers::UsbTmc;
+
+class PowerMeter : public ::testing::Test {
+ protected:
+  ManualClock clock;
+  Lamp lamp{LampOptions{
+      .nominal_w = 2e-3, .drift_per_hour = 0.01, .wander_amplitude = 0, .flicker_rms = 0}};
+};
+
+TEST_F(PowerMeter, BulkOutMessageIsTheUsbTmcHeaderAndPaddedPayload) {
+  // The framing's bytes, checked against USBTMC 1.0 table 3 by hand: MsgID 1, bTag 1, ~bTag,
+  // reserved, TransferSize 6 little-endian, EOM, 3 reserved; "*IDN?\n" padded to 8 bytes.
+  const auto h = drivers::UsbTmcHeader(1, 1, 6, true);
+  const std::array<std::uint8_t, 12> expected{1, 1, 0xFE, 0, 6, 0, 0, 0, 1, 0, 0, 0};
+  EXPECT_EQ(h, expected);
+  SimulatedPowerMeter dev(clock, lamp);
+  UsbTmc tmc(dev);
+  auto idn = tmc.Query("*IDN?");
+  ASSERT_TRUE(idn.ok()) << idn.error().message;
+  EXPECT_EQ(*idn, "gonio-sim,PM100USB (simulated),SIM-PM-1,1.0.0");
+  EXPECT_EQ(tmc.last_tag(), 2);  // one tag for the command, one for the read request
+}
+
+TEST_F(PowerMeter, TagsWrapFrom255ToOneNeverZero) {
+  SimulatedPowerMeter dev(clock, lamp);
+  UsbTmc tmc(dev);
+  for (int i = 0; i < 200; ++i) ASSERT_TRUE(tmc.Query("SENS:AVER:COUN?").ok()) << i;
+  EXPECT_EQ(tmc.last_tag(), 400 % 255);  // 400 tags used: wrapped once past 255, skipping 0
+}
+
+TEST_F(PowerMeter, ScpiSettingsAndTheErrorQueue) {
+  SimulatedPowerMeter dev(clock, lamp);
+  ScpiPowerMeter meter(dev);
+  EXPECT_TRUE(meter.SetWavelengthNm(850).ok());
+  EXPECT_EQ(dev.wavelength_nm(), 850);
+  EXPECT_TRUE(meter.SetAveraging(100).ok());
+  EXPECT_EQ(dev.averaging(), 100);
+  // Out of range: the meter's own SCPI error reaches the operator.
+  const Status bad = meter.SetWavelengthNm(2000);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("-222"), std::string::npos) << bad.error().message;
+  EXPECT_EQ(dev.wavelength_nm(), 850);  // unchanged
+  // Long forms and lower case are SCPI too.
+  UsbTmc tmc(dev);
+  EXPECT_EQ(*tmc.Query("sense:average:count?"), "100");
+  ASSERT_TRUE(tmc.Write("SENS:BOGUS 3").ok());
+  EXPECT_EQ(*tmc.Query("SYST:ERR?"), "-113,\"Undefined header\"");
+  EXPECT_EQ(*tmc.Query("SYST:ERR?"), "0,\"No error\"");
+}
+
+TEST_F(PowerMeter, ReadingsFollowTheLampAndAveragingNarrowsTheNoise) {
+  SimulatedPowerMeter dev(clock, lamp, PowerMeterOptions{.noise_rel = 1e-3});
+  ScpiPowerMeter meter(dev);
+  clock.Advance(1);
+  auto stats = [&](int n) {
+    double s = 0, s2 = 0;
+    for (int i = 0; i < n; ++i) {
+      const double w = *meter.PowerW();
+      s += w, s2 += w * w;
+    }
+    return std::pair{s / n, std::sqrt(std::max(0.0, s2 / n - (s / n) * (s / n)))};
+  };
+  const auto [mean1, sd1] = stats(400);
+  EXPECT_NEAR(mean1, lamp.PowerW(1), 5 * sd1 / 20);
+  EXPECT_NEAR(sd1 / mean1, 1e-3, 2e-4);
+  ASSERT_TRUE(meter.SetAveraging(100).ok());
+  const auto [mean100, sd100] = stats(400);
+  EXPECT_NEAR(sd100 / mean100, 1e-4, 2e-5);  // 1/sqrt(100)
+  // Two hours of drift at 1 %/h: the reading follows.
+  clock.Advance(7200);
+  const auto [mean_later, sd_later] = stats(100);
+  EXPECT_NEAR(mean_later / mean100, lamp.Relative(7201) / lamp.Relative(1), 1e-4);
+  EXPECT_GT(mean_later / mean100, 1.015);
+}
+
+TEST_F(PowerMeter, TimedOutReadIsAbortedAndTheNextQueryIsClean) {
+  SimulatedPowerMeter dev(clock, lamp);
+  UsbTmc tmc(dev, 100);
+  ASSERT_TRUE(tmc.Write("SENS:CORR:WAV 700").ok());  // a command with no response
+  auto r = tmc.Read();                               // ... read anyway: the device NAKs
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kTimeout);
+  EXPECT_EQ(*tmc.Query("SENS:CORR:WAV?"), "700.0");
+  // A response left unread is discarded by the abort of the next timed-out read, or by Clear.
+  ASSERT_TRUE(tmc.Write("*IDN?").ok());
+  ASSERT_TRUE(tmc.Clear().ok());
+  EXPECT_EQ(*tmc.Query("SENS:AVER:COUN?"), "1");
+}
+
+TEST_F(PowerMeter, DisconnectFromTheFaultPlanAndReopenAfterItReturns) {
+  FaultEvent away = OnOpportunity(FaultKind::kMonitorDisconnect, 3);
+  away.duration_s = 5;
+  FaultPlan plan({away}, 1);
+  SimulatedPowerMeter dev(clock, lamp, {}, 1, &plan);
+  ScpiPowerMeter meter(dev);
+  ASSERT_TRUE(meter.PowerW().ok());  // bulk-outs 1 and 2
+  auto r = meter.PowerW();           // bulk-out 3: the meter leaves; the reopen fails too
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kNotConnected);
+  EXPECT_NE(r.error().message.find("reopen failed"), std::string::npos) << r.error().message;
+  clock.Advance(6);  // back on the bus: the meter reopens it and answers
+  auto again = meter.PowerW();
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_NEAR(*again, lamp.PowerW(6), 1e-3 * lamp.PowerW(6));
+}
+
+TEST_F(PowerMeter, MalformedHeaderStallsTheEndpoint) {
+  SimulatedPowerMeter dev(clock, lamp);
+  const std::uint8_t bad[12] = {1, 5, 5, 0, 0, 0, 0, 0, 1, 0, 0, 0};  // ~bTag wrong
+  const Status s = dev.BulkOut(bad, sizeof bad, 100);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("LIBUSB_ERROR_PIPE"), std::string::npos);
+}
+
+// Another process's view: the same framing and SCPI over the loopback socket transport, errors
+// (here a disconnect from the fault plan) carried with their codes.
+TEST_F(PowerMeter, OverTheLoopbackSocketTheDriverSeesTheSameMeter) {
+  FaultEvent away = OnOpportunity(FaultKind::kMonitorDisconnect, 6);
+  away.duration_s = 1;
+  FaultPlan plan({away}, 1);
+  SimulatedPowerMeter dev(clock, lamp, {}, 1, &plan);
+  auto server = MonitorSocketServer::Start(dev);
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  auto transport = drivers::UsbTmcSocketTransport::Connect("127.0.0.1", (*server)->port());
+  ASSERT_TRUE(transport.ok()) << transport.error().message;
+  ScpiPowerMeter meter(**transport);
+  auto idn = meter.Identity();
+  ASSERT_TRUE(idn.ok()) << idn.error().message;
+  EXPECT_EQ(idn->rfind("gonio-sim,PM100USB", 0), 0u);
+  ASSERT_TRUE(meter.SetAveraging(10).ok());  // bulk-outs 3, 4 and 5 (command, SYST:ERR?, read)
+  auto r = meter.PowerW();                   // bulk-out 6: the meter leaves the bus
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kNotConnected);
+  clock.Advance(2);
+  EXPECT_TRUE(meter.PowerW().ok());
+  EXPECT_FALSE(drivers::UsbTmcSocketTransport::Connect("localhost", 1).ok());  // numeric only
+}
+
+}  // namespace
+}  // namespace gonio::sim

@@ -19,7 +19,8 @@ enum class ErrorCode {
   kBusy,
   kAborted,
   kIo,
-  kNumerical,  // a computation could not produce a trustworthy number
+  kNumerical,    // a computation could not produce a trustworthy number
+  kDeviceFault,  // the device reports a fault (an alarm, a limit, a failed readback)
 };
 
 inline const char* ToString(ErrorCode c) {
@@ -40,6 +41,8 @@ inline const char* ToString(ErrorCode c) {
       return "I/O error";
     case ErrorCode::kNumerical:
       return "numerical error";
+    case ErrorCode::kDeviceFault:
+      return "device fault";
   }
   return "error";
 }

@@ -1,0 +1,92 @@
+// The stage controller over Modbus (libmodbus), TCP or RTU. The register map is a profile from the
+// config, not constants: StageRegisterProfile's defaults are the map that the simulated
+// controller implements (docs/stage_register_map.md, after Oriental Motor AZ direct data).
+//
+// Bus faults: a request that times out or fails its CRC is retried (up to `retries` times); a
+// dropped TCP connection is reconnected and the request retried; a Modbus exception is a protocol
+// error and is not retried. Alarms and limit switches are kDeviceFault at once.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "drivers/stage/stage.h"
+
+namespace gonio::drivers {
+
+// Where the controller keeps what the driver uses; 32-bit values as two registers, upper first.
+struct StageRegisterProfile {
+  std::uint16_t direct_data = 0x0058;  // 16 registers: number, type, position, speed, acc, dec,
+                                       // current, trigger
+  std::uint32_t operation_absolute = 1;
+  std::uint32_t current = 1000;  // 0.1 % units, written with each move
+  std::uint16_t input_command = 0x007C;
+  std::uint16_t output_status = 0x007E;
+  std::uint16_t present_alarm = 0x0080;
+  std::uint16_t command_position = 0x00C6;
+  std::uint16_t alarm_reset = 0x0180;
+  std::uint32_t in_home = 1u << 4, in_stop = 1u << 5;
+  std::uint32_t out_home_end = 1u << 4, out_ready = 1u << 5, out_alarm = 1u << 7,
+                out_move = 1u << 13, out_in_pos = 1u << 14;
+};
+
+struct ModbusLink {
+  // "tcp": host (numeric) and port; "rtu": device and line settings.
+  std::string kind = "tcp";
+  std::string host = "127.0.0.1";
+  int port = 502;
+  std::string device;
+  int baud = 115200;
+  char parity = 'E';
+  int data_bits = 8, stop_bits = 1;
+  double response_timeout_s = 0.5;
+  int retries = 3;  // per request, for timeouts, CRC errors and dropped connections
+};
+
+class ModbusStageController final : public StageController {
+ public:
+  // Connects and checks every axis answers its status. Errors name the link and the axis.
+  static Result<std::unique_ptr<ModbusStageController>> Open(ModbusLink link,
+                                                             std::vector<AxisSettings> axes,
+                                                             StageRegisterProfile profile = {});
+  ~ModbusStageController() override;
+
+  const std::vector<AxisSettings>& axes() const override { return axes_; }
+  Status MoveTo(const std::vector<std::pair<std::string, double>>& targets) override;
+  Status Home(const std::vector<std::string>& names = {}) override;
+  Status StopAll() override;
+  Result<AxisStatus> ReadStatus(const std::string& name) override;
+  Status ResetAlarm(const std::string& name) override;
+
+  // How many requests were retried, and reconnections made (for logs and tests).
+  int retried() const { return retried_; }
+  int reconnects() const { return reconnects_; }
+
+ private:
+  ModbusStageController() = default;
+  Result<const AxisSettings*> Find(const std::string& name) const;
+  Status Connect();
+  // One request with the retry policy; `what` names it in errors.
+  Status Read(const AxisSettings& a, std::uint16_t address, int count, std::uint16_t* out,
+              const std::string& what);
+  Status Write(const AxisSettings& a, std::uint16_t address, int count, const std::uint16_t* values,
+               const std::string& what);
+  Status Write32(const AxisSettings& a, std::uint16_t address, std::uint32_t v,
+                 const std::string& what);
+  Status StartMove(const AxisSettings& a, double deg);
+  // Waits until every axis in `list` satisfies `done` (IN-POS, or HOME-END), failing on alarms.
+  Status WaitAll(const std::vector<const AxisSettings*>& list, bool homing, double timeout_s,
+                 const std::vector<double>& targets_deg);
+  std::string AlarmText(const AxisSettings& a, std::uint32_t code) const;
+
+  ModbusLink link_;
+  std::vector<AxisSettings> axes_;
+  StageRegisterProfile p_;
+  std::mutex mu_;        // one request on the bus at a time
+  void* ctx_ = nullptr;  // modbus_t*
+  int retried_ = 0, reconnects_ = 0;
+};
+
+}  // namespace gonio::drivers

@@ -6,7 +6,7 @@ set -euo pipefail
 
 packages=(
   # toolchain and test/bench frameworks
-  build-essential cmake pkg-config git clang-format
+  build-essential cmake pkg-config git clang-format file
   libgtest-dev libgmock-dev libbenchmark-dev
   # the hardware and science stack (DESIGN.md)
   libaravis-dev aravis-tools libmodbus-dev libusb-1.0-0-dev mbpoll

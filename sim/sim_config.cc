@@ -1,99 +1,15 @@
 #include "sim/sim_config.h"
 
 #include <toml++/toml.h>
+
 #include <set>
 #include <sstream>
 
+#include "config/toml_reader.h"
+
 namespace gonio::sim {
 
-namespace {
-
-// Reads one key of a table into *out when present, checking its type and range.
-class Reader {
- public:
-  Reader(std::string path) : path_(std::move(path)) {}
-
-  Error Fail(const toml::node* node, const std::string& what) const {
-    std::ostringstream s;
-    s << path_;
-    if (node != nullptr) s << ":" << node->source().begin.line;
-    s << ": " << what;
-    return Error{ErrorCode::kInvalidArgument, s.str()};
-  }
-
-  // Known keys only: a misspelt key is an error, not a silent default.
-  Status Keys(const toml::table& t, const std::string& where, std::set<std::string> known) {
-    for (const auto& [k, v] : t) {
-      if (!known.count(std::string(k.str()))) {
-        return Fail(&v, "unknown key '" + std::string(k.str()) + "' in [" + where + "]");
-      }
-    }
-    return OkStatus();
-  }
-
-  Status Number(const toml::table& t, const char* key, double* out, double lo, double hi) {
-    const toml::node* n = t.get(key);
-    if (n == nullptr) return OkStatus();
-    const auto v = n->value<double>();
-    if (!v) return Fail(n, std::string("'") + key + "' must be a number");
-    if (!(*v >= lo && *v <= hi)) {
-      std::ostringstream s;
-      s << "'" << key << "' = " << *v << " is outside [" << lo << ", " << hi << "]";
-      return Fail(n, s.str());
-    }
-    *out = *v;
-    return OkStatus();
-  }
-
-  Status Integer(const toml::table& t, const char* key, std::int64_t* out, std::int64_t lo,
-                 std::int64_t hi) {
-    const toml::node* n = t.get(key);
-    if (n == nullptr) return OkStatus();
-    const auto v = n->value_exact<std::int64_t>();
-    if (!v) return Fail(n, std::string("'") + key + "' must be an integer");
-    if (*v < lo || *v > hi) {
-      std::ostringstream s;
-      s << "'" << key << "' = " << *v << " is outside [" << lo << ", " << hi << "]";
-      return Fail(n, s.str());
-    }
-    *out = *v;
-    return OkStatus();
-  }
-
-  Status String(const toml::table& t, const char* key, std::string* out,
-                const std::set<std::string>& allowed = {}) {
-    const toml::node* n = t.get(key);
-    if (n == nullptr) return OkStatus();
-    const auto v = n->value<std::string>();
-    if (!v) return Fail(n, std::string("'") + key + "' must be a string");
-    if (!allowed.empty() && !allowed.count(*v)) {
-      std::string list;
-      for (const auto& a : allowed) list += (list.empty() ? "" : ", ") + a;
-      return Fail(n, std::string("'") + key + "' = \"" + *v + "\" is not one of: " + list);
-    }
-    *out = *v;
-    return OkStatus();
-  }
-
-  Status Bool(const toml::table& t, const char* key, bool* out) {
-    const toml::node* n = t.get(key);
-    if (n == nullptr) return OkStatus();
-    const auto v = n->value_exact<bool>();
-    if (!v) return Fail(n, std::string("'") + key + "' must be true or false");
-    *out = *v;
-    return OkStatus();
-  }
-
- private:
-  std::string path_;
-};
-
-#define GONIO_TRY(expr)                                  \
-  do {                                                   \
-    if (Status s_ = (expr); !s_.ok()) return s_.error(); \
-  } while (0)
-
-}  // namespace
+using config::Reader;
 
 SimConfig DefaultSimConfig() {
   SimConfig c;
@@ -113,14 +29,9 @@ StageAngles AnglesFromSteps(const std::vector<AxisConfig>& axes, const std::vect
 }
 
 Result<SimConfig> LoadSimConfig(const std::string& path) {
-  toml::table root;
-  try {
-    root = toml::parse_file(path);
-  } catch (const toml::parse_error& e) {
-    std::ostringstream s;
-    s << path << ":" << e.source().begin.line << ": " << e.description();
-    return Error{ErrorCode::kInvalidArgument, s.str()};
-  }
+  auto parsed = config::ParseTomlFile(path);
+  if (!parsed.ok()) return parsed.error();
+  const toml::table& root = *parsed;
   Reader r(path);
   SimConfig c = DefaultSimConfig();
   GONIO_TRY(r.Keys(root, "top level",

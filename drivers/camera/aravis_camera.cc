@@ -61,8 +61,7 @@ void AravisCamera::Disconnect() {
 }
 
 Status AravisCamera::Connect() {
-  const std::string id =
-      s_.address.rfind("usb3:", 0) == 0 ? s_.address.substr(5) : s_.address;
+  const std::string id = s_.address.rfind("usb3:", 0) == 0 ? s_.address.substr(5) : s_.address;
   GError* e = nullptr;
   camera_ = arv_camera_new(id.c_str(), &e);
   if (Status s = Check(e, "camera " + s_.address + " does not answer", ErrorCode::kNotConnected);
@@ -79,7 +78,8 @@ Status AravisCamera::Connect() {
   stream_owner_ = std::shared_ptr<_ArvStream>(stream_, [](_ArvStream* st) { g_object_unref(st); });
   const guint payload = arv_camera_get_payload(camera_, &e);
   if (Status s = Check(e, "camera payload size"); !s.ok()) return s;
-  for (int k = 0; k < s_.buffers; ++k) arv_stream_push_buffer(stream_, arv_buffer_new(payload, nullptr));
+  for (int k = 0; k < s_.buffers; ++k)
+    arv_stream_push_buffer(stream_, arv_buffer_new(payload, nullptr));
   arv_camera_start_acquisition(camera_, &e);
   return Check(e, "camera " + s_.address + ": AcquisitionStart");
 }
@@ -138,7 +138,8 @@ Result<double> AravisCamera::Exposure() {
 Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_problem) {
   for (int attempt = first_attempt; attempt <= first_attempt + s_.retries; ++attempt) {
     // Stale frames (from before this call) go back to the pool unread.
-    while (ArvBuffer* old = arv_stream_try_pop_buffer(stream_)) arv_stream_push_buffer(stream_, old);
+    while (ArvBuffer* old = arv_stream_try_pop_buffer(stream_))
+      arv_stream_push_buffer(stream_, old);
     gint free_buffers = 0, filled = 0;
     arv_stream_get_n_buffers(stream_, &free_buffers, &filled);
     if (free_buffers == 0)
@@ -153,8 +154,8 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
       g_error_free(e);
       Disconnect();
       if (Status s = Connect(); !s.ok())
-        return Error{ErrorCode::kNotConnected, "camera " + s_.address +
-                                                   " lost and not reopened: " + s.error().message};
+        return Error{ErrorCode::kNotConnected,
+                     "camera " + s_.address + " lost and not reopened: " + s.error().message};
       ++reopens_;
       if (Status s = SetExposure(exposure_s_); !s.ok()) return s.error();
       continue;
@@ -167,7 +168,7 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
     }
     if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_SUCCESS) {
       *last_problem = "frame arrived incomplete (buffer status " +
-                     std::to_string(static_cast<int>(arv_buffer_get_status(b))) + ")";
+                      std::to_string(static_cast<int>(arv_buffer_get_status(b))) + ")";
       arv_stream_push_buffer(stream_, b);
       continue;
     }
@@ -204,8 +205,8 @@ Result<Frame> AravisCamera::Snap() {
   auto f = SnapOnce(1, &problem);
   // Every attempt timed out without a frame: a camera that was power-cycled answers its
   // registers but has forgotten its stream. Reopen it once and try again.
-  const bool silent = !f.ok() && f.error().code == ErrorCode::kTimeout &&
-                      problem.rfind("no frame", 0) == 0;
+  const bool silent =
+      !f.ok() && f.error().code == ErrorCode::kTimeout && problem.rfind("no frame", 0) == 0;
   if (silent) {
     Disconnect();
     if (Status s = Connect(); !s.ok())
@@ -218,8 +219,8 @@ Result<Frame> AravisCamera::Snap() {
   if (f.ok() || f.error().code != ErrorCode::kTimeout) return f;
   const bool incomplete = problem.find("incomplete") != std::string::npos;
   return Error{incomplete ? ErrorCode::kDeviceFault : ErrorCode::kTimeout,
-               "camera " + s_.address + ": " + problem + " (after " +
-                   std::to_string(s_.retries) + " retries" + (silent ? " and a reopen)" : ")")};
+               "camera " + s_.address + ": " + problem + " (after " + std::to_string(s_.retries) +
+                   " retries" + (silent ? " and a reopen)" : ")")};
 }
 
 Result<double> AravisCamera::TemperatureC() {

@@ -30,7 +30,7 @@ class AravisCamera final : public Camera {
 
  private:
   AravisCamera() = default;
-  Status Connect();     // camera, settings, stream
+  Status Connect();  // camera, settings, stream
   void Disconnect();
   Status Configure();
   // One trigger and its retries; kTimeout carries only the last problem (in *last_problem).

@@ -52,8 +52,8 @@ struct Frame {
 struct TemperatureWait {
   double setpoint_c = -20;
   double tolerance_c = 0.5;
-  double hold_s = 30;      // within tolerance continuously this long
-  double timeout_s = 900;  // real seconds
+  double hold_s = 30;         // within tolerance continuously this long
+  double timeout_s = 900;     // real seconds
   double ramp_c_per_min = 0;  // > 0: move the setpoint in steps at this rate (protects the sensor)
   double poll_s = 0.5;
 };

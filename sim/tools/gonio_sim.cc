@@ -35,7 +35,7 @@ void OnSignal(int) { g_stop = true; }
 int main(int argc, char** argv) {
   using namespace gonio::sim;
   CLI::App app{"Simulated gonioreflectometer devices on 127.0.0.1"};
-  std::string config_path, port_file, rtu_link;
+  std::string config_path, port_file, monitor_port_file, rtu_link;
   int port = -1, monitor_port = -1;
   double speed = 0;
   bool no_camera = false;
@@ -51,6 +51,8 @@ int main(int argc, char** argv) {
   app.add_option("--monitor-port", monitor_port,
                  "source monitor socket on 127.0.0.1, 0: any free port (overrides)")
       ->check(CLI::Range(0, 65535));
+  app.add_option("--monitor-port-file", monitor_port_file,
+                 "write the chosen source monitor port to this file");
   CLI11_PARSE(app, argc, argv);
 
   SimConfig cfg = DefaultSimConfig();
@@ -112,6 +114,9 @@ int main(int argc, char** argv) {
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  // The Modbus port file last: scripts wait for it, then read the others.
+  if (!monitor_port_file.empty() && monitor)
+    std::ofstream(monitor_port_file) << monitor->port() << "\n";
   if (!port_file.empty()) std::ofstream(port_file) << (*server)->port() << "\n";
   std::cout << "gonio-sim: stage controller (" << cfg.axes.size() << " axes, unit ids 1.."
             << cfg.axes.size() << ") on Modbus TCP 127.0.0.1:" << (*server)->port();

@@ -25,7 +25,11 @@ class CameraDriver : public ::testing::Test {
     o.sensor.sensor_width = o.sensor.sensor_height = 128;
     o.sensor.mm_per_pixel = 0.64;
     auto cam = sim::SimulatedCamera::StartGigE(
-        clock, scene, [] { return sim::StageAngles{0, 180, 0}; }, lamp, o, plan.get());
+        clock, scene,
+        [] {
+          return sim::StageAngles{0, 180, 0};
+        },
+        lamp, o, plan.get());
     ASSERT_TRUE(cam.ok()) << cam.error().message;
     sim_camera = std::move(*cam);
   }
@@ -112,8 +116,12 @@ TEST_F(CameraDriver, CoolsToASetpointAndHoldsIt) {
   auto cam = Open();
   ASSERT_TRUE(cam);
   // From ambient 20 C to 10 C with tau = 60 s: within 0.5 C after 3 tau = 180 s (1.8 s at x100).
-  drivers::TemperatureWait w{.setpoint_c = 10, .tolerance_c = 0.5, .hold_s = 0.3,
-                             .timeout_s = 10, .ramp_c_per_min = 0, .poll_s = 0.05};
+  drivers::TemperatureWait w{.setpoint_c = 10,
+                             .tolerance_c = 0.5,
+                             .hold_s = 0.3,
+                             .timeout_s = 10,
+                             .ramp_c_per_min = 0,
+                             .poll_s = 0.05};
   const Status s = cam->CoolAndWait(w);
   ASSERT_TRUE(s.ok()) << s.error().message;
   EXPECT_NEAR(*cam->TemperatureC(), 10, 0.5);
@@ -123,8 +131,12 @@ TEST_F(CameraDriver, AFailedCoolerIsATimeoutThatSaysWhereTheSensorIs) {
   Start({sim::AtTime(FaultKind::kCoolerFail, 0)});
   auto cam = Open();
   ASSERT_TRUE(cam);
-  drivers::TemperatureWait w{.setpoint_c = -10, .tolerance_c = 0.5, .hold_s = 0.3,
-                             .timeout_s = 0.5, .ramp_c_per_min = 0, .poll_s = 0.05};
+  drivers::TemperatureWait w{.setpoint_c = -10,
+                             .tolerance_c = 0.5,
+                             .hold_s = 0.3,
+                             .timeout_s = 0.5,
+                             .ramp_c_per_min = 0,
+                             .poll_s = 0.05};
   const Status s = cam->CoolAndWait(w);
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().code, ErrorCode::kTimeout);

@@ -68,10 +68,10 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
     }
     if (const toml::table* k = (*t)["cooling"].as_table()) {
       drivers::CoolingFeatures& f = s.cooling;
-      GONIO_TRY(r.Keys(*k, "camera.cooling",
-                       {"temperature_selector", "temperature_selector_value", "temperature",
-                        "control_mode", "control_on", "control_off", "setpoint",
-                        "setpoint_activate"}));
+      GONIO_TRY(
+          r.Keys(*k, "camera.cooling",
+                 {"temperature_selector", "temperature_selector_value", "temperature",
+                  "control_mode", "control_on", "control_off", "setpoint", "setpoint_activate"}));
       GONIO_TRY(r.String(*k, "temperature_selector", &f.temperature_selector));
       GONIO_TRY(r.String(*k, "temperature_selector_value", &f.temperature_selector_value));
       GONIO_TRY(r.String(*k, "temperature", &f.temperature));
@@ -85,8 +85,8 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
 
   if (const toml::table* t = root["stages"].as_table()) {
     GONIO_TRY(r.Keys(*t, "stages",
-                     {"link", "host", "port", "device", "baud", "parity", "data_bits",
-                      "stop_bits", "response_timeout_s", "retries", "registers", "axis"}));
+                     {"link", "host", "port", "device", "baud", "parity", "data_bits", "stop_bits",
+                      "response_timeout_s", "retries", "registers", "axis"}));
     drivers::ModbusLink& l = c.stage_link;
     GONIO_TRY(r.String(*t, "link", &l.kind, {"rtu", "tcp"}));
     GONIO_TRY(r.String(*t, "host", &l.host));
@@ -149,9 +149,8 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
         if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
         GONIO_TRY(r.Keys(*a, "stages.axis",
                          {"name", "slave_id", "steps_per_degree", "degrees_at_zero", "min_deg",
-                          "max_deg", "backlash_overshoot_deg", "speed_deg_s",
-                          "acceleration_deg_s2", "tolerance_deg", "move_timeout_s",
-                          "home_timeout_s"}));
+                          "max_deg", "backlash_overshoot_deg", "speed_deg_s", "acceleration_deg_s2",
+                          "tolerance_deg", "move_timeout_s", "home_timeout_s"}));
         drivers::AxisSettings ax;
         if (a->get("name") == nullptr) return r.Fail(&item, "axis without 'name'");
         GONIO_TRY(r.String(*a, "name", &ax.name, {"arm", "azimuth", "sample"}));

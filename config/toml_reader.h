@@ -108,8 +108,7 @@ inline Result<toml::table> ParseTomlFile(const std::string& path) {
 }  // namespace gonio::config
 
 // Returns the error of a Status-returning expression from the enclosing function.
-#define GONIO_TRY(expr)                                  \
-  do {                                                   \
+#define GONIO_TRY(expr)                                           \
+  do {                                                            \
     if (::gonio::Status s_ = (expr); !s_.ok()) return s_.error(); \
   } while (0)
-

@@ -2,13 +2,11 @@
 // uses (issue #5). It reads the instrument config and opens only the device asked for.
 //
 //   gonio-hw -c config/instrument.toml camera info
-//   gonio-hw -c config/instrument.toml camera snap --exposure 0.2 --out frame.png --roi 240,240,32,32
-//   gonio-hw -c config/instrument.toml camera cool --setpoint -20 --hold 30
-//   gonio-hw -c config/instrument.toml stage status
-//   gonio-hw -c config/instrument.toml stage home
-//   gonio-hw -c config/instrument.toml stage move sample=30 arm=210
-//   gonio-hw -c config/instrument.toml stage reset sample
-//   gonio-hw -c config/instrument.toml monitor read --count 5
+//   gonio-hw -c config/instrument.toml camera snap --exposure 0.2 --out frame.png --roi
+//   240,240,32,32 gonio-hw -c config/instrument.toml camera cool --setpoint -20 --hold 30 gonio-hw
+//   -c config/instrument.toml stage status gonio-hw -c config/instrument.toml stage home gonio-hw
+//   -c config/instrument.toml stage move sample=30 arm=210 gonio-hw -c config/instrument.toml stage
+//   reset sample gonio-hw -c config/instrument.toml monitor read --count 5
 //
 // Exit codes: 0 done; 1 a device failed (the message says how); 2 bad command line or config.
 #include <CLI/CLI.hpp>
@@ -37,9 +35,8 @@ Result<cv::Rect> ParseRoi(const std::string& text, const cv::Size& image) {
     return InvalidArgument("--roi '" + text + "' must be x,y,width,height");
   const cv::Rect r(x, y, w, h);
   if (w <= 0 || h <= 0 || (r & cv::Rect(0, 0, image.width, image.height)) != r)
-    return InvalidArgument("--roi '" + text + "' is not inside the " +
-                           std::to_string(image.width) + "x" + std::to_string(image.height) +
-                           " image");
+    return InvalidArgument("--roi '" + text + "' is not inside the " + std::to_string(image.width) +
+                           "x" + std::to_string(image.height) + " image");
   return r;
 }
 
@@ -70,8 +67,8 @@ int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action
     cv::minMaxLoc(view, &lo, &hi);
     const int full = cfg.camera.pixel_format == "Mono12" ? 4095 : 65535;
     const int saturated = cv::countNonZero(view >= full);
-    std::cout << "frame " << f->image.cols << "x" << f->image.rows << ", exposure "
-              << f->exposure_s << " s, attempts " << f->attempts << "\n"
+    std::cout << "frame " << f->image.cols << "x" << f->image.rows << ", exposure " << f->exposure_s
+              << " s, attempts " << f->attempts << "\n"
               << "roi " << roi->x << "," << roi->y << " " << roi->width << "x" << roi->height
               << ": mean " << mean[0] << " ADU, sd " << sd[0] << ", min " << lo << ", max " << hi
               << ", pixels " << view.total() << ", saturated " << saturated << "\n";
@@ -226,8 +223,9 @@ int main(int argc, char** argv) {
   }
   auto cfg = gonio::config::LoadInstrumentConfig(config_path);
   if (!cfg.ok()) return Fail(cfg.error());
-  if (*cam) return CameraCommand(*cfg, cam_action, exposure, out, roi, setpoint, tolerance, hold,
-                                 timeout, off);
+  if (*cam)
+    return CameraCommand(*cfg, cam_action, exposure, out, roi, setpoint, tolerance, hold, timeout,
+                         off);
   if (*stage) return StageCommand(*cfg, stage_action, stage_args);
   return MonitorCommand(*cfg, mon_action, count);
 }

@@ -35,9 +35,9 @@ Result<std::unique_ptr<LibUsbTmcTransport>> LibUsbTmcTransport::Open(UsbDeviceId
   const int rc = libusb_init(&t->ctx_);
   if (rc != 0) {
     t->ctx_ = nullptr;
-    return Error{ErrorCode::kNotConnected,
-                 "source monitor " + IdText(t->id_) + ": no USB access here (" +
-                     libusb_error_name(rc) + ")"};
+    return Error{ErrorCode::kNotConnected, "source monitor " + IdText(t->id_) +
+                                               ": no USB access here (" + libusb_error_name(rc) +
+                                               ")"};
   }
   if (Status s = t->Find(); !s.ok()) return s.error();
   return t;
@@ -61,9 +61,8 @@ Status LibUsbTmcTransport::Find() {
   libusb_device** list = nullptr;
   const ssize_t n = libusb_get_device_list(ctx_, &list);
   if (n < 0) return UsbError(static_cast<int>(n), "listing USB devices");
-  Status result = Error{ErrorCode::kNotConnected,
-                        "no USBTMC device " + IdText(id_) +
-                            " found; is it plugged in and powered?"};
+  Status result = Error{ErrorCode::kNotConnected, "no USBTMC device " + IdText(id_) +
+                                                      " found; is it plugged in and powered?"};
   for (ssize_t k = 0; k < n && handle_ == nullptr; ++k) {
     libusb_device_descriptor d{};
     if (libusb_get_device_descriptor(list[k], &d) != 0 || d.idVendor != id_.vendor_id ||
@@ -138,8 +137,7 @@ Status LibUsbTmcTransport::BulkOut(const std::uint8_t* data, std::size_t n, int 
                                       static_cast<int>(n), &done, timeout_ms);
   if (rc == LIBUSB_ERROR_PIPE) libusb_clear_halt(handle_, ep_out_);
   if (rc != 0) return UsbError(rc, "USBTMC bulk-out to " + IdText(id_));
-  if (done != static_cast<int>(n))
-    return Error{ErrorCode::kIo, "USBTMC bulk-out: short transfer"};
+  if (done != static_cast<int>(n)) return Error{ErrorCode::kIo, "USBTMC bulk-out: short transfer"};
   return OkStatus();
 }
 
@@ -147,8 +145,8 @@ Result<std::size_t> LibUsbTmcTransport::BulkIn(std::uint8_t* data, std::size_t c
                                                int timeout_ms) {
   if (handle_ == nullptr) return Error{ErrorCode::kNotConnected, IdText(id_) + " is closed"};
   int done = 0;
-  const int rc = libusb_bulk_transfer(handle_, ep_in_, data, static_cast<int>(capacity), &done,
-                                      timeout_ms);
+  const int rc =
+      libusb_bulk_transfer(handle_, ep_in_, data, static_cast<int>(capacity), &done, timeout_ms);
   if (rc == LIBUSB_ERROR_PIPE) libusb_clear_halt(handle_, ep_in_);
   if (rc != 0) return UsbError(rc, "USBTMC bulk-in from " + IdText(id_));
   return static_cast<std::size_t>(done);
@@ -167,12 +165,11 @@ Result<std::vector<std::uint8_t>> LibUsbTmcTransport::ClassRequest(std::uint8_t 
       static_cast<unsigned>(to_endpoint ? LIBUSB_RECIPIENT_ENDPOINT : LIBUSB_RECIPIENT_INTERFACE));
   const bool bulk_in = request == usbtmc_request::kInitiateAbortBulkIn ||
                        request == usbtmc_request::kCheckAbortBulkInStatus;
-  const std::uint16_t index = to_endpoint ? (bulk_in ? ep_in_ : ep_out_)
-                                          : static_cast<std::uint16_t>(interface_);
+  const std::uint16_t index =
+      to_endpoint ? (bulk_in ? ep_in_ : ep_out_) : static_cast<std::uint16_t>(interface_);
   std::vector<std::uint8_t> buf(length);
-  const int rc =
-      libusb_control_transfer(handle_, type, request, value, index, buf.data(), length,
-                              static_cast<unsigned>(timeout_ms));
+  const int rc = libusb_control_transfer(handle_, type, request, value, index, buf.data(), length,
+                                         static_cast<unsigned>(timeout_ms));
   if (rc < 0) return UsbError(rc, "USBTMC class request " + std::to_string(request));
   buf.resize(static_cast<std::size_t>(rc));
   return buf;

@@ -36,7 +36,7 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   if (const toml::table* t = root["camera"].as_table()) {
     GONIO_TRY(r.Keys(*t, "camera",
                      {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning",
-                      "roi", "buffers", "frame_timeout_s", "retries", "cooling"}));
+                      "roi", "buffers", "frame_timeout_s", "retries", "features"}));
     drivers::CameraSettings& s = c.camera;
     GONIO_TRY(r.Bool(*t, "enabled", &c.camera_enabled));
     GONIO_TRY(r.String(*t, "address", &s.address));
@@ -66,12 +66,12 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
       if (s.roi_x < 0 || s.roi_y < 0 || s.roi_width < 0 || s.roi_height < 0)
         return r.Fail(n, "'roi' values must be >= 0");
     }
-    if (const toml::table* k = (*t)["cooling"].as_table()) {
-      drivers::CoolingFeatures& f = s.cooling;
-      GONIO_TRY(
-          r.Keys(*k, "camera.cooling",
-                 {"temperature_selector", "temperature_selector_value", "temperature",
-                  "control_mode", "control_on", "control_off", "setpoint", "setpoint_activate"}));
+    if (const toml::table* k = (*t)["features"].as_table()) {
+      drivers::VendorFeatures& f = s.features;
+      GONIO_TRY(r.Keys(*k, "camera.features",
+                       {"temperature_selector", "temperature_selector_value", "temperature",
+                        "control_mode", "control_on", "control_off", "setpoint",
+                        "setpoint_activate", "shutter", "shutter_open", "shutter_closed"}));
       GONIO_TRY(r.String(*k, "temperature_selector", &f.temperature_selector));
       GONIO_TRY(r.String(*k, "temperature_selector_value", &f.temperature_selector_value));
       GONIO_TRY(r.String(*k, "temperature", &f.temperature));
@@ -80,6 +80,9 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
       GONIO_TRY(r.String(*k, "control_off", &f.control_off));
       GONIO_TRY(r.String(*k, "setpoint", &f.setpoint));
       GONIO_TRY(r.String(*k, "setpoint_activate", &f.setpoint_activate));
+      GONIO_TRY(r.String(*k, "shutter", &f.shutter));
+      GONIO_TRY(r.String(*k, "shutter_open", &f.shutter_open));
+      GONIO_TRY(r.String(*k, "shutter_closed", &f.shutter_closed));
     }
   }
 

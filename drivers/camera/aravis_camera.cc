@@ -226,7 +226,7 @@ Result<Frame> AravisCamera::Snap() {
 Result<double> AravisCamera::TemperatureC() {
   ArvDevice* dev = arv_camera_get_device(camera_);
   GError* e = nullptr;
-  const CoolingFeatures& c = s_.cooling;
+  const VendorFeatures& c = s_.features;
   if (!c.temperature_selector.empty()) {
     arv_device_set_string_feature_value(dev, c.temperature_selector.c_str(),
                                         c.temperature_selector_value.c_str(), &e);
@@ -237,8 +237,17 @@ Result<double> AravisCamera::TemperatureC() {
   return t;
 }
 
+Status AravisCamera::SetShutter(bool open) {
+  const VendorFeatures& c = s_.features;
+  if (c.shutter.empty()) return InvalidArgument("this camera's config names no shutter");
+  GError* e = nullptr;
+  arv_device_set_string_feature_value(arv_camera_get_device(camera_), c.shutter.c_str(),
+                                      (open ? c.shutter_open : c.shutter_closed).c_str(), &e);
+  return Check(e, c.shutter);
+}
+
 Status AravisCamera::SetCooling(bool on, double setpoint_c) {
-  const CoolingFeatures& c = s_.cooling;
+  const VendorFeatures& c = s_.features;
   if (c.control_mode.empty()) return InvalidArgument("this camera's config names no cooler");
   ArvDevice* dev = arv_camera_get_device(camera_);
   GError* e = nullptr;

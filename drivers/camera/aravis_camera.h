@@ -23,6 +23,7 @@ class AravisCamera final : public Camera {
   Result<double> Exposure() override;
   Result<Frame> Snap() override;
   Result<double> TemperatureC() override;
+  Status SetShutter(bool open) override;
   Status SetCooling(bool on, double setpoint_c) override;
   Status CoolAndWait(const TemperatureWait& w) override;
 

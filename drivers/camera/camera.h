@@ -13,9 +13,9 @@
 
 namespace gonio::drivers {
 
-// Vendors name cooling differently (no SFNC standard): the config maps the names. The defaults
-// are Allied Vision Goldeye's, which the simulated camera also uses.
-struct CoolingFeatures {
+// Vendors name cooling and the shutter differently (no SFNC standard): the config maps the
+// names. The cooling defaults are Allied Vision Goldeye's, which the simulated camera also uses.
+struct VendorFeatures {
   std::string temperature_selector = "DeviceTemperatureSelector";  // empty: none
   std::string temperature_selector_value = "Sensor";
   std::string temperature = "DeviceTemperature";
@@ -23,6 +23,9 @@ struct CoolingFeatures {
   std::string control_on = "On", control_off = "Off";
   std::string setpoint = "SensorTemperatureSetpointValue";
   std::string setpoint_activate = "SensorTemperatureSetpointActivate";  // command; empty: none
+  // The shutter for dark frames (enum feature and its entries); empty: no shutter.
+  std::string shutter = "ShutterMode";
+  std::string shutter_open = "Open", shutter_closed = "Closed";
 };
 
 struct CameraSettings {
@@ -37,7 +40,7 @@ struct CameraSettings {
   int buffers = 4;
   double frame_timeout_s = 5;  // beyond the exposure time
   int retries = 2;             // failed or incomplete frames re-triggered, per Snap
-  CoolingFeatures cooling;
+  VendorFeatures features;
 };
 
 // One frame: `image` views the transport buffer, kept alive by `hold`.
@@ -69,6 +72,8 @@ class Camera {
   // incomplete), kNotConnected (the camera left and could not be reopened).
   virtual Result<Frame> Snap() = 0;
   virtual Result<double> TemperatureC() = 0;
+  // Closes (dark frames) or opens the shutter. kInvalidArgument when the config names none.
+  virtual Status SetShutter(bool open) = 0;
   virtual Status SetCooling(bool on, double setpoint_c) = 0;
   // Turns the cooler on toward w.setpoint_c (ramped if asked) and waits until the sensor stays
   // within tolerance for hold_s. Errors: kTimeout naming the temperature reached.

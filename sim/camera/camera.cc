@@ -157,6 +157,7 @@ cv::Mat1w SimulatedCamera::Shoot(const StageAngles& a0, const StageAngles& a1, d
   cv::Mat1d rates = Rates(a0, region).clone();
   if (!SameAngles(a0, a1)) rates = 0.5 * (rates + Rates(a1, region));  // moved while exposing
   rates *= lamp_.MeanRelative(t0, t0 + exposure_s);
+  if (Reg(camera_reg::kShutter) == 1) rates = 0.0;  // closed: a dark frame (dark current, bias)
   ExposureSettings s;
   s.exposure_s = exposure_s;
   s.gain_db = Reg(ARV_FAKE_CAMERA_REGISTER_GAIN_RAW) / 100.0;

@@ -48,6 +48,7 @@ inline constexpr std::uint32_t kSetpoint = 0x410;           // signed, milli-deg
 inline constexpr std::uint32_t kSetpointActivate = 0x414;   // write 1: apply kSetpoint
 inline constexpr std::uint32_t kCoolingPower = 0x418;       // milli-percent (RO)
 inline constexpr std::uint32_t kBlackLevel = 0x41c;         // ADU
+inline constexpr std::uint32_t kShutter = 0x428;            // 0 open, 1 closed (dark frames)
 }  // namespace camera_reg
 
 // The genicam file installed beside the sources (compiled-in path; overridable).

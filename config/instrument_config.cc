@@ -34,9 +34,10 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor"}));
 
   if (const toml::table* t = root["camera"].as_table()) {
-    GONIO_TRY(r.Keys(*t, "camera",
-                     {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning",
-                      "roi", "buffers", "frame_timeout_s", "retries", "features"}));
+    GONIO_TRY(
+        r.Keys(*t, "camera",
+               {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning", "roi",
+                "buffers", "frame_timeout_s", "retries", "linear_limit_adu", "features"}));
     drivers::CameraSettings& s = c.camera;
     GONIO_TRY(r.Bool(*t, "enabled", &c.camera_enabled));
     GONIO_TRY(r.String(*t, "address", &s.address));
@@ -55,6 +56,7 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
     GONIO_TRY(r.Integer(*t, "retries", &v, 0, 10));
     s.retries = static_cast<int>(v);
     GONIO_TRY(r.Number(*t, "frame_timeout_s", &s.frame_timeout_s, 0.01, 600));
+    GONIO_TRY(r.Number(*t, "linear_limit_adu", &s.linear_limit_adu, 100, 65535));
     if (const toml::node* n = t->get("roi")) {
       const toml::array* a = n->as_array();
       if (a == nullptr || a->size() != 4 || !a->is_homogeneous<std::int64_t>())

@@ -135,6 +135,14 @@ Result<double> AravisCamera::Exposure() {
   return us * 1e-6;
 }
 
+Result<cv::Size> AravisCamera::ImageSize() {
+  GError* e = nullptr;
+  gint x = 0, y = 0, w = 0, h = 0;
+  arv_camera_get_region(camera_, &x, &y, &w, &h, &e);
+  if (Status s = Check(e, "Width/Height"); !s.ok()) return s.error();
+  return cv::Size(w, h);
+}
+
 Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_problem) {
   for (int attempt = first_attempt; attempt <= first_attempt + s_.retries; ++attempt) {
     // Stale frames (from before this call) go back to the pool unread.

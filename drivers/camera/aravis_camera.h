@@ -21,6 +21,7 @@ class AravisCamera final : public Camera {
   std::string Identity() const override { return identity_; }
   Status SetExposure(double seconds) override;
   Result<double> Exposure() override;
+  Result<cv::Size> ImageSize() override;
   Result<Frame> Snap() override;
   Result<double> TemperatureC() override;
   Status SetShutter(bool open) override;

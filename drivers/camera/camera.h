@@ -40,6 +40,8 @@ struct CameraSettings {
   int buffers = 4;
   double frame_timeout_s = 5;  // beyond the exposure time
   int retries = 2;             // failed or incomplete frames re-triggered, per Snap
+  // Where the sensor stops being linear (full well), raw ADU: acquisition keeps pixels below.
+  double linear_limit_adu = 65535;
   VendorFeatures features;
 };
 
@@ -67,6 +69,8 @@ class Camera {
   virtual std::string Identity() const = 0;  // "vendor model serial"
   virtual Status SetExposure(double seconds) = 0;
   virtual Result<double> Exposure() = 0;
+  // The frames' size (region and binning applied).
+  virtual Result<cv::Size> ImageSize() = 0;
   // One software-triggered frame at the current settings. Errors: kTimeout (no frame within the
   // exposure plus frame_timeout_s, after the retries), kDeviceFault (frames kept arriving
   // incomplete), kNotConnected (the camera left and could not be reopened).

@@ -6,6 +6,7 @@
 
 #include <opencv2/core/utility.hpp>
 
+#include "common/bench_angles.h"
 #include "fitting/optics/fresnel.h"
 #include "sim/truth/scattering.h"
 
@@ -56,9 +57,8 @@ NominalGeometry Nominal(const BenchGeometry& bench, const StageAngles& angles) {
 }
 
 StageAngles StageAnglesFor(double theta_l_deg, double theta_v_deg, double azimuth_deg) {
-  double arm = std::fmod(theta_l_deg + theta_v_deg + 180, 360.0);
-  if (arm < 0) arm += 360;
-  return {theta_l_deg, arm, azimuth_deg};
+  const StageTargets t = StageTargetsFor(theta_l_deg, theta_v_deg, azimuth_deg);
+  return {t.sample_deg, t.arm_deg, t.azimuth_deg};
 }
 
 Scene::Scene(BenchGeometry bench, std::shared_ptr<const GroundTruth> truth, SceneOptions options)

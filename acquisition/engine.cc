@@ -1,0 +1,228 @@
+#include "acquisition/engine.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "acquisition/reduce.h"
+
+namespace gonio::acquisition {
+
+namespace {
+
+double UnixNow() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+// Exposures on a ladder of 8 steps per decade (rounded down): neighbouring points share their
+// exposures, so the dark library serves them without a dark per point.
+double OnLadder(double t) { return std::pow(10.0, std::floor(8 * std::log10(t) + 1e-9) / 8); }
+
+bool HasAxis(const drivers::StageController& s, const std::string& name) {
+  for (const auto& a : s.axes())
+    if (a.name == name) return true;
+  return false;
+}
+
+}  // namespace
+
+Engine::Engine(drivers::StageController& stages, drivers::Camera& camera,
+               drivers::SourceMonitor* monitor, Storage& db, EngineOptions options)
+    : stages_(stages), camera_(camera), monitor_(monitor), db_(db), o_(options) {}
+
+Result<double> Engine::MonitorW() {
+  if (monitor_ == nullptr) return 0.0;
+  return monitor_->PowerW();
+}
+
+Result<const DarkRecord*> Engine::DarkFor(double exposure_s, const Plan& plan) {
+  auto temp = camera_.TemperatureC();
+  if (!temp.ok()) return temp.error();
+  const auto key = static_cast<std::int64_t>(std::llround(exposure_s * 1e6));
+  auto it = darks_.find(key);
+  const double now = UnixNow();
+  if (it != darks_.end() && now - it->second.taken_unix_s <= plan.darks.max_age_s &&
+      std::abs(*temp - it->second.temperature_c) <= plan.darks.max_temperature_change_c)
+    return &it->second;  // fresh: reused
+  // Stale, missing, or the sensor's temperature moved: take it again with the shutter closed.
+  if (Status s = camera_.SetShutter(false); !s.ok()) return s.error();
+  const cv::Rect rect(plan.rectangle.x, plan.rectangle.y, plan.rectangle.width,
+                      plan.rectangle.height);
+  RectAccumulator acc(rect, o_.linear_limit_adu);
+  Status status = OkStatus();
+  for (int k = 0; k < std::max(2, plan.darks.frames) && status.ok(); ++k) {
+    auto f = camera_.Snap();
+    if (!f.ok()) {
+      status = f.error();
+      break;
+    }
+    acc.Add(f->image);
+  }
+  // The shutter reopens whatever happened: a closed shutter must not outlive the dark.
+  if (Status s = camera_.SetShutter(true); !s.ok() && status.ok()) status = s;
+  if (!status.ok()) return status.error();
+  DarkRecord d;
+  d.exposure_s = exposure_s;
+  d.temperature_c = *temp;
+  d.frames = acc.frames();
+  d.mean = acc.Mean();
+  d.pixel_var = acc.PixelVariance();
+  d.taken_unix_s = now;
+  auto id = db_.StoreDark(d);
+  if (!id.ok()) return id.error();
+  d.id = *id;
+  darks_[key] = d;
+  return &darks_[key];
+}
+
+Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan) {
+  std::vector<std::pair<std::string, double>> targets = {{"sample", p.stage.sample_deg},
+                                                         {"arm", p.stage.arm_deg}};
+  if (HasAxis(stages_, "azimuth")) targets.emplace_back("azimuth", p.stage.azimuth_deg);
+  if (Status s = stages_.MoveTo(targets); !s.ok()) return s.error();
+  Measurement m;
+  m.index = p.index;
+  for (const auto& [name, deg] : targets) {
+    auto st = stages_.ReadStatus(name);
+    if (!st.ok()) return st.error();
+    (name == "sample" ? m.sample_read_deg
+     : name == "arm"  ? m.arm_read_deg
+                      : m.azimuth_read_deg) = st->position_deg;
+  }
+
+  const ExposurePolicy& x = plan.exposure;
+  const double limit = o_.linear_limit_adu;
+  const cv::Rect rect(plan.rectangle.x, plan.rectangle.y, plan.rectangle.width,
+                      plan.rectangle.height);
+  double t = last_exposure_s_ > 0 ? last_exposure_s_ : OnLadder(x.initial_s);
+  t = std::clamp(t, x.min_s, x.max_s);
+  // Auto-ranging: the brightest rectangle pixel above dark goes to `target` of the linear range
+  // above dark; a pixel past `saturation` shortens the exposure, one below `floor` lengthens it.
+  std::optional<drivers::Frame> first;
+  const DarkRecord* dark = nullptr;
+  for (int tries = 1;; ++tries) {
+    if (Status s = camera_.SetExposure(t); !s.ok()) return s.error();
+    auto f = camera_.Snap();
+    if (!f.ok()) return f.error();
+    auto d = DarkFor(t, plan);
+    if (!d.ok()) return d.error();
+    dark = *d;
+    RectAccumulator probe(rect, limit);
+    probe.Add(f->image);
+    const double range = limit - dark->mean;
+    const double peak = probe.Max() - dark->mean;
+    m.ranging_tries = tries;
+    const bool too_bright = probe.Max() >= dark->mean + x.saturation * range;
+    const bool too_dim = peak < x.floor * range && t < x.max_s;
+    if (tries >= o_.max_ranging_tries || (!too_bright && !too_dim)) {
+      if (too_bright)
+        return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
+                                                  " saturates even at " + std::to_string(t) +
+                                                  " s (min_s " + std::to_string(x.min_s) + ")"};
+      if (peak < x.floor * range) m.flags |= kFlagAtMaxExposure;
+      first = std::move(f).value();
+      break;
+    }
+    const double goal = x.target * range / std::max(peak, 1.0);
+    // Saturated pixels hide how bright the peak is: cut hard. Otherwise scale to the target,
+    // at most x100 per step.
+    const double next = too_bright ? t * std::min(0.25, goal) : t * std::min(goal, 100.0);
+    if (too_bright && t <= x.min_s)
+      return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
+                                                " saturates at the shortest exposure " +
+                                                std::to_string(x.min_s) + " s"};
+    t = std::clamp(OnLadder(next), x.min_s, x.max_s);
+  }
+  last_exposure_s_ = t;
+
+  auto before = MonitorW();
+  if (!before.ok()) return before.error();
+  RectAccumulator acc(rect, limit);
+  acc.Add(first->image);
+  first.reset();  // frames are not kept beyond their reduction
+  for (int k = 1; k < x.frames; ++k) {
+    auto f = camera_.Snap();
+    if (!f.ok()) return f.error();
+    acc.Add(f->image);
+  }
+  auto after = MonitorW();
+  if (!after.ok()) return after.error();
+  auto temp = camera_.TemperatureC();
+  if (!temp.ok()) return temp.error();
+
+  double norm = 1;
+  if (monitor_ != nullptr) {
+    m.monitor_w = 0.5 * (*before + *after);
+    if (!(*m.monitor_w > 0))
+      return Error{ErrorCode::kDeviceFault,
+                   "source monitor reads " + std::to_string(*m.monitor_w) + " W: lamp off?"};
+    if (!monitor_reference_) {
+      monitor_reference_ = *m.monitor_w;
+      if (Status s = db_.SetMonitorReference(run_, *monitor_reference_); !s.ok()) return s.error();
+    }
+    norm = *m.monitor_w / *monitor_reference_;
+  }
+  m.exposure_s = t;
+  m.frames = acc.frames();
+  m.temperature_c = *temp;
+  m.rect_mean = acc.Mean();
+  m.rect_sd = acc.FrameMeansSd();
+  m.rect_pixels = acc.pixels();
+  m.rect_saturated = acc.Saturated();
+  m.dark_id = dark->id;
+  // One frame gives no variance of its own: use the shot-noise-free floor of the dark's.
+  m.pixel_var = acc.frames() >= 2 ? acc.PixelVariance() : dark->pixel_var;
+  m.value = (m.rect_mean - dark->mean) / t / norm;
+  const double var_mean = m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) +
+                          dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames));
+  m.sigma = std::sqrt(var_mean) / t / norm;
+  return m;
+}
+
+Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
+                   const std::function<void(const Progress&)>& progress) {
+  run_ = run;
+  auto info = db_.GetRun(run);
+  if (!info.ok()) return info.error();
+  monitor_reference_ = info->monitor_reference_w;  // a resumed run keeps its reference
+  auto pending = db_.Points(run, /*pending_only=*/true);
+  if (!pending.ok()) return pending.error();
+  if (Status s = db_.SetRunStatus(run, "running"); !s.ok()) return s;
+  if (info->points_done > 0)
+    (void)db_.AddEvent(run, "resumed", std::to_string(info->points_done) + " points already done");
+  // The shutter starts open (a previous run may have been killed during a dark).
+  if (Status s = camera_.SetShutter(true); !s.ok()) return s;
+  Progress pr;
+  pr.total = info->points_total - info->points_skipped;
+  pr.done = info->points_done;
+  const auto t0 = std::chrono::steady_clock::now();
+  int measured_here = 0;
+  for (const PlannedPoint& p : *pending) {
+    if (stop) {
+      (void)db_.AddEvent(run, "paused",
+                         "stopped by request before point " + std::to_string(p.index));
+      return db_.SetRunStatus(run, "paused");
+    }
+    auto m = MeasurePoint(p, plan);
+    if (!m.ok()) {
+      (void)stages_.StopAll();
+      (void)db_.AddEvent(run, "fault", m.error().ToString());
+      (void)db_.SetRunStatus(run, "paused");
+      return Error{m.error().code, "run " + std::to_string(run) + ", point " +
+                                       std::to_string(p.index) + ": " + m.error().message};
+    }
+    if (Status s = db_.StoreMeasurement(run, *m); !s.ok()) return s;
+    ++pr.done;
+    ++measured_here;
+    if (progress) {
+      pr.point = p;
+      pr.last = *m;
+      pr.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      pr.eta_s = pr.elapsed_s / measured_here * (pr.total - pr.done);
+      progress(pr);
+    }
+  }
+  return db_.SetRunStatus(run, "done");
+}
+
+}  // namespace gonio::acquisition

@@ -1,0 +1,68 @@
+// The sweep engine: measures a run's pending points in order, each one committed when complete,
+// through the driver interfaces only. Per point: all axes move together, the readback is stored;
+// the exposure is auto-ranged (no rectangle pixel above the linear range, the brightest pixel
+// above the floor unless at the longest exposure); N frames are accumulated; a dark at the same
+// exposure and temperature comes from the dark library (reused while fresh, retaken when stale
+// or when the temperature moved); the source monitor, when present, normalises by the lamp's
+// output relative to the run's first reading.
+//
+// Stored value: (rectangle mean - dark mean) / exposure / (monitor / monitor reference), in
+// counts per second, proportional to BTDF * cos(theta_l) (REFERENCE.md section 1). Its sigma comes
+// from the pooled per-pixel variance of the frames and of the dark.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <optional>
+
+#include "acquisition/plan.h"
+#include "acquisition/storage.h"
+#include "drivers/camera/camera.h"
+#include "drivers/monitor/source_monitor.h"
+#include "drivers/stage/stage.h"
+
+namespace gonio::acquisition {
+
+struct EngineOptions {
+  double linear_limit_adu = 65535;  // the sensor's linear range (full well), raw ADU
+  int max_ranging_tries = 12;
+};
+
+struct Progress {
+  int done = 0, total = 0;  // measured points of the run (skipped ones not counted)
+  PlannedPoint point;
+  Measurement last;
+  double elapsed_s = 0, eta_s = 0;
+};
+
+class Engine {
+ public:
+  // The devices and the database must outlive the engine; `monitor` may be null.
+  Engine(drivers::StageController& stages, drivers::Camera& camera, drivers::SourceMonitor* monitor,
+         Storage& db, EngineOptions options = {});
+
+  // Runs (or resumes) `run`. Returns OK when every point is done (the run is marked done), or
+  // when `stop` was set (after the current point is stored; the run is left paused). A device
+  // error stops the stages and leaves the run paused for a resume, with the error returned.
+  Status Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
+             const std::function<void(const Progress&)>& progress = {});
+
+ private:
+  Result<Measurement> MeasurePoint(const PlannedPoint& p, const Plan& plan);
+  Result<const DarkRecord*> DarkFor(double exposure_s, const Plan& plan);
+  Result<double> MonitorW();
+
+  drivers::StageController& stages_;
+  drivers::Camera& camera_;
+  drivers::SourceMonitor* monitor_;
+  Storage& db_;
+  EngineOptions o_;
+  std::int64_t run_ = 0;
+  std::optional<double> monitor_reference_;
+  double last_exposure_s_ = 0;
+  std::map<std::int64_t, DarkRecord> darks_;  // by exposure in microseconds
+};
+
+}  // namespace gonio::acquisition

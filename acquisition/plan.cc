@@ -1,0 +1,251 @@
+#include "acquisition/plan.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "config/toml_reader.h"
+
+namespace gonio::acquisition {
+
+using config::Reader;
+
+namespace {
+
+// A list of numbers, each in [lo, hi]; errors name the list's line.
+Status Numbers(Reader& r, const toml::table& t, const char* key, std::vector<double>* out,
+               double lo, double hi) {
+  const toml::node* n = t.get(key);
+  if (n == nullptr) return OkStatus();
+  const toml::array* a = n->as_array();
+  if (a == nullptr || a->empty()) return r.Fail(n, std::string("'") + key + "' must be a list");
+  out->clear();
+  for (const toml::node& v : *a) {
+    const auto x = v.value<double>();
+    if (!x) return r.Fail(&v, std::string("'") + key + "' must list numbers");
+    if (!(*x >= lo && *x <= hi)) {
+      std::ostringstream s;
+      s << "'" << key << "' value " << *x << " is outside [" << lo << ", " << hi << "]";
+      return r.Fail(&v, s.str());
+    }
+    out->push_back(*x);
+  }
+  return OkStatus();
+}
+
+const drivers::AxisSettings* Axis(const std::vector<drivers::AxisSettings>& axes,
+                                  const std::string& name) {
+  for (const auto& a : axes)
+    if (a.name == name) return &a;
+  return nullptr;
+}
+
+// The travel limits an angle must respect, or "" when it fits (arm angles may wrap by 360).
+std::string LimitProblem(const drivers::AxisSettings* a, double* deg) {
+  if (a == nullptr) return "";
+  for (double candidate : {*deg, *deg - 360, *deg + 360}) {
+    if (candidate >= a->min_deg && candidate <= a->max_deg) {
+      *deg = candidate;
+      return "";
+    }
+  }
+  std::ostringstream s;
+  s << a->name << " at " << *deg << " deg is outside its travel limits [" << a->min_deg << ", "
+    << a->max_deg << "]";
+  return s.str();
+}
+
+}  // namespace
+
+Result<std::vector<Specimen>> LoadSpecimens(const std::string& path) {
+  auto parsed = config::ParseTomlFile(path);
+  if (!parsed.ok()) return parsed.error();
+  Reader r(path);
+  GONIO_TRY(r.Keys(*parsed, "top level", {"specimen"}));
+  std::vector<Specimen> out;
+  const toml::array* list = (*parsed)["specimen"].as_array();
+  if (list == nullptr) return r.Fail(nullptr, "no [[specimen]] tables");
+  for (const toml::node& item : *list) {
+    const toml::table* t = item.as_table();
+    if (t == nullptr) return r.Fail(&item, "each [[specimen]] must be a table");
+    GONIO_TRY(r.Keys(*t, "specimen", {"name", "material", "thickness_mm", "eta"}));
+    Specimen s;
+    if (t->get("name") == nullptr) return r.Fail(&item, "specimen without 'name'");
+    GONIO_TRY(r.String(*t, "name", &s.name));
+    for (const Specimen& o : out)
+      if (o.name == s.name) return r.Fail(t->get("name"), "specimen '" + s.name + "' listed twice");
+    GONIO_TRY(r.String(*t, "material", &s.material));
+    GONIO_TRY(r.Number(*t, "thickness_mm", &s.thickness_mm, 0.1, 50));
+    GONIO_TRY(r.Number(*t, "eta", &s.eta, 1.0, 4.0));
+    out.push_back(s);
+  }
+  return out;
+}
+
+Result<Plan> LoadPlan(const std::string& path, const PlanContext& context) {
+  auto parsed = config::ParseTomlFile(path);
+  if (!parsed.ok()) return parsed.error();
+  const toml::table& root = *parsed;
+  Reader r(path);
+  Plan p;
+  p.path = path;
+  GONIO_TRY(r.Keys(root, "top level", {"sample", "geometry", "exposure", "darks", "rectangle"}));
+
+  const toml::node* sample = root.get("sample");
+  if (sample == nullptr) return r.Fail(nullptr, "the plan names no 'sample'");
+  std::string name;
+  GONIO_TRY(r.String(root, "sample", &name));
+  bool found = false;
+  for (const Specimen& s : context.specimens)
+    if (s.name == name) p.specimen = s, found = true;
+  if (!found) {
+    std::string known;
+    for (const Specimen& s : context.specimens) known += (known.empty() ? "" : ", ") + s.name;
+    return r.Fail(sample, "unknown sample '" + name + "' (the catalogue has: " + known + ")");
+  }
+
+  const toml::table* g = root["geometry"].as_table();
+  if (g == nullptr) return r.Fail(nullptr, "the plan has no [geometry]");
+  GONIO_TRY(r.Keys(*g, "geometry",
+                   {"incidence_deg", "view_from_deg", "view_to_deg", "view_step_deg", "azimuth_deg",
+                    "arm_shadow_half_angle_deg", "view_about"}));
+  if (g->get("incidence_deg") == nullptr) return r.Fail(g, "[geometry] needs incidence_deg");
+  GONIO_TRY(Numbers(r, *g, "incidence_deg", &p.incidence_deg, 0, 89.9));
+  p.azimuth_deg = {0};
+  GONIO_TRY(Numbers(r, *g, "azimuth_deg", &p.azimuth_deg, -180, 180));
+  GONIO_TRY(r.Number(*g, "view_from_deg", &p.view_from_deg, -89.9, 89.9));
+  GONIO_TRY(r.Number(*g, "view_to_deg", &p.view_to_deg, -89.9, 89.9));
+  GONIO_TRY(r.Number(*g, "view_step_deg", &p.view_step_deg, 0.01, 90));
+  GONIO_TRY(r.Number(*g, "arm_shadow_half_angle_deg", &p.arm_shadow_half_angle_deg, 0, 45));
+  GONIO_TRY(r.String(*g, "view_about", &p.view_about, {"normal", "refracted"}));
+  if (!(p.view_from_deg <= p.view_to_deg))
+    return r.Fail(g->get("view_to_deg") ? g->get("view_to_deg") : g,
+                  "view_to_deg must not be below view_from_deg");
+
+  if (const toml::table* e = root["exposure"].as_table()) {
+    ExposurePolicy& x = p.exposure;
+    GONIO_TRY(r.Keys(*e, "exposure",
+                     {"frames", "initial_s", "min_s", "max_s", "saturation", "target", "floor"}));
+    std::int64_t frames = x.frames;
+    GONIO_TRY(r.Integer(*e, "frames", &frames, 1, 1000));
+    x.frames = static_cast<int>(frames);
+    GONIO_TRY(r.Number(*e, "min_s", &x.min_s, 1e-6, 3600));
+    GONIO_TRY(r.Number(*e, "max_s", &x.max_s, 1e-6, 3600));
+    GONIO_TRY(r.Number(*e, "initial_s", &x.initial_s, 1e-6, 3600));
+    GONIO_TRY(r.Number(*e, "saturation", &x.saturation, 0.1, 1));
+    GONIO_TRY(r.Number(*e, "target", &x.target, 0.01, 1));
+    GONIO_TRY(r.Number(*e, "floor", &x.floor, 0, 1));
+    if (!(x.min_s <= x.initial_s && x.initial_s <= x.max_s))
+      return r.Fail(e, "exposure needs min_s <= initial_s <= max_s");
+    if (!(x.floor < x.target && x.target < x.saturation))
+      return r.Fail(e, "exposure needs floor < target < saturation");
+  } else if (root.get("exposure") != nullptr) {
+    return r.Fail(root.get("exposure"), "[exposure] must be a table");
+  }
+  if (const toml::table* d = root["darks"].as_table()) {
+    GONIO_TRY(r.Keys(*d, "darks", {"frames", "max_age_s", "max_temperature_change_c"}));
+    std::int64_t frames = p.darks.frames;
+    GONIO_TRY(r.Integer(*d, "frames", &frames, 1, 1000));
+    p.darks.frames = static_cast<int>(frames);
+    GONIO_TRY(r.Number(*d, "max_age_s", &p.darks.max_age_s, 1, 1e6));
+    GONIO_TRY(
+        r.Number(*d, "max_temperature_change_c", &p.darks.max_temperature_change_c, 0.01, 20));
+  }
+  const toml::table* rect = root["rectangle"].as_table();
+  if (rect == nullptr) return r.Fail(nullptr, "the plan has no [rectangle]");
+  GONIO_TRY(r.Keys(*rect, "rectangle", {"x", "y", "width", "height"}));
+  std::int64_t v[4] = {-1, -1, 0, 0};
+  const char* keys[4] = {"x", "y", "width", "height"};
+  for (int k = 0; k < 4; ++k) {
+    if (rect->get(keys[k]) == nullptr)
+      return r.Fail(rect, std::string("[rectangle] needs '") + keys[k] + "'");
+    GONIO_TRY(r.Integer(*rect, keys[k], &v[k], k < 2 ? 0 : 1, 100000));
+  }
+  p.rectangle = {static_cast<int>(v[0]), static_cast<int>(v[1]), static_cast<int>(v[2]),
+                 static_cast<int>(v[3])};
+  if (context.image_width > 0 && (p.rectangle.x + p.rectangle.width > context.image_width ||
+                                  p.rectangle.y + p.rectangle.height > context.image_height)) {
+    std::ostringstream s;
+    s << "the rectangle " << p.rectangle.width << "x" << p.rectangle.height << " at ("
+      << p.rectangle.x << ", " << p.rectangle.y << ") is outside the " << context.image_width << "x"
+      << context.image_height << " image";
+    return r.Fail(rect, s.str());
+  }
+  // Every incidence must be reachable by the sample axis: a plan that cannot do what it says
+  // is refused, not quietly thinned (single view angles beyond reach are only skipped).
+  const drivers::AxisSettings* sample_axis = Axis(context.axes, "sample");
+  for (std::size_t k = 0; k < p.incidence_deg.size(); ++k) {
+    double deg = p.incidence_deg[k];
+    if (std::string why = LimitProblem(sample_axis, &deg); !why.empty())
+      return r.Fail(&(*g->get("incidence_deg")->as_array())[k], "incidence: " + why);
+  }
+  std::ostringstream text;
+  text << root;
+  p.text = text.str();
+  return p;
+}
+
+std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& context) {
+  std::vector<double> views;
+  const int n = static_cast<int>(
+      std::floor((plan.view_to_deg - plan.view_from_deg) / plan.view_step_deg + 1e-9));
+  for (int k = 0; k <= n; ++k) views.push_back(plan.view_from_deg + k * plan.view_step_deg);
+  std::vector<PlannedPoint> out;
+  bool forward = true;
+  for (double phi : plan.azimuth_deg) {
+    for (double theta_l : plan.incidence_deg) {
+      for (std::size_t j = 0; j < views.size(); ++j) {
+        double theta_v = views[forward ? j : views.size() - 1 - j];
+        if (plan.view_about == "refracted") {  // Snell: sin(theta_t) = sin(theta_l) / eta
+          const double theta_t = std::asin(std::sin(theta_l * M_PI / 180) / plan.specimen.eta);
+          theta_v += -theta_t * 180 / M_PI;
+        }
+        PlannedPoint p;
+        p.index = static_cast<int>(out.size());
+        p.theta_l_deg = theta_l;
+        p.theta_v_deg = theta_v;
+        p.phi_deg = phi;
+        p.stage = StageTargetsFor(theta_l, theta_v, phi);
+        std::string why;
+        if (std::abs(theta_v) >= 89.9) why = "theta_v beyond grazing";
+        if (why.empty()) why = LimitProblem(Axis(context.axes, "arm"), &p.stage.arm_deg);
+        if (why.empty()) why = LimitProblem(Axis(context.axes, "sample"), &p.stage.sample_deg);
+        if (why.empty() && Axis(context.axes, "azimuth") != nullptr)
+          why = LimitProblem(Axis(context.axes, "azimuth"), &p.stage.azimuth_deg);
+        if (why.empty() && ArmInSourceBeam(p.stage.arm_deg, plan.arm_shadow_half_angle_deg))
+          why = "the detector arm would block the source beam";
+        if (why.empty() && phi != 0 && Axis(context.axes, "azimuth") == nullptr)
+          why = "azimuth " + std::to_string(phi) + " deg needs an azimuth axis";
+        p.skipped = !why.empty();
+        p.reason = why;
+        out.push_back(p);
+      }
+      forward = !forward;  // serpentine: the next incidence sweeps back
+    }
+  }
+  return out;
+}
+
+double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
+                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s) {
+  // A trapezoid per axis: distance / speed + speed / acceleration; axes move together.
+  auto move_s = [&](const std::string& name, double from, double to) {
+    const drivers::AxisSettings* a = Axis(axes, name);
+    if (a == nullptr || from == to) return 0.0;
+    const double d = std::abs(to - from), v = a->speed_deg_s, acc = a->acceleration_deg_s2;
+    return d >= v * v / acc ? d / v + v / acc : 2 * std::sqrt(d / acc);
+  };
+  double total = 0;
+  StageTargets at{0, 180, 0};
+  for (const PlannedPoint& p : points) {
+    if (p.skipped) continue;
+    total += std::max({move_s("sample", at.sample_deg, p.stage.sample_deg),
+                       move_s("arm", at.arm_deg, p.stage.arm_deg),
+                       move_s("azimuth", at.azimuth_deg, p.stage.azimuth_deg)});
+    total += (plan.exposure.frames + 1) * typical_exposure_s;  // +1: the ranging frame
+    at = p.stage;
+  }
+  return total;
+}
+
+}  // namespace gonio::acquisition

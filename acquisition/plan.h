@@ -1,0 +1,88 @@
+// A measurement plan (TOML, acquisition/README.md documents every key; example:
+// config/plan_ground_glass.toml): which specimen, which geometries, how to expose, which image
+// rectangle to average. Loading validates the whole file against the specimen catalogue and the
+// instrument (travel limits, the arm in the source beam) and the camera's image size, so that a bad
+// plan is refused with file:line before anything moves. Geometries that cannot be measured are
+// kept with the reason they are skipped.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "common/bench_angles.h"
+#include "common/result.h"
+#include "drivers/stage/stage.h"
+
+namespace gonio::acquisition {
+
+// One specimen of the catalogue (config/samples.toml).
+struct Specimen {
+  std::string name;
+  std::string material;
+  double thickness_mm = 6;
+  double eta = 1.5;
+};
+Result<std::vector<Specimen>> LoadSpecimens(const std::string& path);
+
+struct ExposurePolicy {
+  int frames = 4;           // averaged per point
+  double initial_s = 0.05;  // the first point's first try
+  double min_s = 1e-4, max_s = 20;
+  double saturation = 0.9;  // no rectangle pixel may exceed this fraction of full scale
+  double target = 0.5;      // the rectangle's brightest pixel is aimed here (above dark)
+  double floor = 0.02;      // below this, the exposure is lengthened unless at max_s
+};
+
+struct DarkPolicy {
+  int frames = 4;
+  double max_age_s = 600;  // a dark older than this is retaken
+  double max_temperature_change_c = 0.5;
+};
+
+struct Rectangle {
+  int x = 0, y = 0, width = 0, height = 0;  // image pixels
+};
+
+struct PlannedPoint {
+  int index = 0;  // order of measurement
+  double theta_l_deg = 0, theta_v_deg = 0, phi_deg = 0;
+  StageTargets stage;  // sample, arm, azimuth (deg)
+  bool skipped = false;
+  std::string reason;  // why it is skipped
+};
+
+struct Plan {
+  std::string path;
+  Specimen specimen;
+  std::vector<double> incidence_deg, azimuth_deg;
+  double view_from_deg = -80, view_to_deg = 80, view_step_deg = 2;
+  // "normal": view angles are theta_v; "refracted": offsets from the straight-through view
+  // theta_v = -theta_t (Snell at the specimen's eta), so each incidence sweeps its own lobe.
+  std::string view_about = "normal";
+  double arm_shadow_half_angle_deg = 4;
+  ExposurePolicy exposure;
+  DarkPolicy darks;
+  Rectangle rectangle;
+  std::string text;  // the file as read, stored with the run
+};
+
+struct PlanContext {
+  std::vector<Specimen> specimens;
+  std::vector<drivers::AxisSettings> axes;  // travel limits
+  int image_width = 0, image_height = 0;    // 0: not checked
+};
+
+// Parses and validates; errors carry "path:line: what".
+Result<Plan> LoadPlan(const std::string& path, const PlanContext& context);
+
+// The points in measurement order: incidence by incidence (the sample axis moves least), the view
+// sweep alternating direction (a serpentine: the arm never flies back), azimuths outermost.
+// Unreachable or occluded geometries come back with skipped = true and a reason.
+std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& context);
+
+// Seconds the run should take: moves along the order at the axes' speeds plus, per point,
+// `frames` exposures of `typical_exposure_s` and the darks (an estimate before anything moves).
+double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
+                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s);
+
+}  // namespace gonio::acquisition

@@ -1,0 +1,396 @@
+#include "acquisition/storage.h"
+
+#include <sqlite3.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+
+namespace gonio::acquisition {
+
+namespace {
+
+// Migration k takes the schema from version k to k + 1. Never edit a released migration: add one.
+const char* const kMigrations[] = {
+    R"sql(
+CREATE TABLE instrument_configs(
+  id INTEGER PRIMARY KEY, hash TEXT NOT NULL UNIQUE, content TEXT NOT NULL,
+  created_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')));
+CREATE TABLE specimens(
+  id INTEGER PRIMARY KEY, name TEXT NOT NULL UNIQUE, material TEXT NOT NULL DEFAULT '',
+  thickness_mm REAL NOT NULL, eta REAL NOT NULL);
+CREATE TABLE runs(
+  id INTEGER PRIMARY KEY, specimen_id INTEGER NOT NULL REFERENCES specimens(id),
+  config_id INTEGER NOT NULL REFERENCES instrument_configs(id), plan TEXT NOT NULL,
+  status TEXT NOT NULL CHECK(status IN ('planned','running','paused','done','aborted','failed')),
+  monitor_reference_w REAL,
+  created_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')),
+  finished_at TEXT);
+CREATE TABLE plan_points(
+  run_id INTEGER NOT NULL REFERENCES runs(id), idx INTEGER NOT NULL,
+  theta_l_deg REAL NOT NULL, theta_v_deg REAL NOT NULL, phi_deg REAL NOT NULL,
+  sample_deg REAL NOT NULL, arm_deg REAL NOT NULL, azimuth_deg REAL NOT NULL,
+  status TEXT NOT NULL CHECK(status IN ('pending','done','skipped')), reason TEXT NOT NULL DEFAULT '',
+  PRIMARY KEY(run_id, idx));
+CREATE TABLE darks(
+  id INTEGER PRIMARY KEY, exposure_s REAL NOT NULL, temperature_c REAL NOT NULL,
+  frames INTEGER NOT NULL, rect_mean REAL NOT NULL, pixel_var REAL NOT NULL,
+  taken_unix_s REAL NOT NULL);
+CREATE TABLE measurements(
+  run_id INTEGER NOT NULL, idx INTEGER NOT NULL,
+  sample_read_deg REAL NOT NULL, arm_read_deg REAL NOT NULL, azimuth_read_deg REAL NOT NULL,
+  exposure_s REAL NOT NULL, frames INTEGER NOT NULL, temperature_c REAL NOT NULL,
+  monitor_w REAL, rect_mean REAL NOT NULL, rect_sd REAL NOT NULL, pixel_var REAL NOT NULL,
+  rect_pixels INTEGER NOT NULL, rect_saturated INTEGER NOT NULL,
+  dark_id INTEGER REFERENCES darks(id), value REAL NOT NULL, sigma REAL NOT NULL,
+  flags INTEGER NOT NULL, ranging_tries INTEGER NOT NULL,
+  measured_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')),
+  PRIMARY KEY(run_id, idx), FOREIGN KEY(run_id, idx) REFERENCES plan_points(run_id, idx));
+CREATE TABLE run_events(
+  run_id INTEGER NOT NULL REFERENCES runs(id), kind TEXT NOT NULL, detail TEXT NOT NULL,
+  at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')));
+CREATE TABLE calibrations(
+  id INTEGER PRIMARY KEY, kind TEXT NOT NULL, content TEXT NOT NULL,
+  created_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')));
+CREATE TABLE fit_results(
+  id INTEGER PRIMARY KEY, run_id INTEGER NOT NULL REFERENCES runs(id), model TEXT NOT NULL,
+  parameters TEXT NOT NULL, summary TEXT NOT NULL,
+  created_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')));
+)sql",
+};
+constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
+static_assert(kMigrationCount == kSchemaVersion);
+
+// A prepared statement that finalises itself.
+class Stmt {
+ public:
+  Stmt(sqlite3* db, const char* sql) : db_(db) {
+    if (sqlite3_prepare_v2(db, sql, -1, &s_, nullptr) != SQLITE_OK) s_ = nullptr;
+  }
+  ~Stmt() { sqlite3_finalize(s_); }
+  Stmt(const Stmt&) = delete;
+  Stmt& operator=(const Stmt&) = delete;
+  bool ok() const { return s_ != nullptr; }
+  Stmt& Bind(int i, double v) { return sqlite3_bind_double(s_, i, v), *this; }
+  Stmt& Bind(int i, std::int64_t v) { return sqlite3_bind_int64(s_, i, v), *this; }
+  Stmt& Bind(int i, int v) { return sqlite3_bind_int(s_, i, v), *this; }
+  Stmt& Bind(int i, const std::string& v) {
+    return sqlite3_bind_text(s_, i, v.c_str(), static_cast<int>(v.size()), SQLITE_TRANSIENT), *this;
+  }
+  Stmt& Bind(int i, std::optional<double> v) {
+    return v ? Bind(i, *v) : (sqlite3_bind_null(s_, i), *this);
+  }
+  int Step() { return sqlite3_step(s_); }
+  double D(int c) { return sqlite3_column_double(s_, c); }
+  std::int64_t I(int c) { return sqlite3_column_int64(s_, c); }
+  bool Null(int c) { return sqlite3_column_type(s_, c) == SQLITE_NULL; }
+  std::string T(int c) {
+    const auto* t = sqlite3_column_text(s_, c);
+    return t ? reinterpret_cast<const char*>(t) : "";
+  }
+  Error Fail(const std::string& what) const {
+    return Error{ErrorCode::kIo, what + ": " + sqlite3_errmsg(db_)};
+  }
+
+ private:
+  sqlite3* db_;
+  sqlite3_stmt* s_ = nullptr;
+};
+
+std::string Hash(const std::string& text) {  // FNV-1a, 64 bit: identity, not security
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : text) h = (h ^ c) * 1099511628211ull;
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
+  return b;
+}
+
+}  // namespace
+
+Result<std::unique_ptr<Storage>> Storage::Open(const std::string& path) {
+  std::unique_ptr<Storage> s(new Storage());
+  s->path_ = path;
+  if (sqlite3_open_v2(path.c_str(), &s->db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE, nullptr) !=
+      SQLITE_OK)
+    return Error{ErrorCode::kIo, "cannot open database " + path + ": " +
+                                     (s->db_ ? sqlite3_errmsg(s->db_) : "out of memory")};
+  sqlite3_busy_timeout(s->db_, 5000);
+  // WAL: readers (the daemon's API, gonioctl) never block the run; FULL: a committed point
+  // survives a power cut, not only a killed process.
+  if (Status st = s->Exec("PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; "
+                          "PRAGMA foreign_keys=ON;");
+      !st.ok())
+    return st.error();
+  if (Status st = s->Migrate(); !st.ok()) return st.error();
+  return s;
+}
+
+Storage::~Storage() { sqlite3_close(db_); }
+
+Status Storage::Exec(const std::string& sql) {
+  char* err = nullptr;
+  if (sqlite3_exec(db_, sql.c_str(), nullptr, nullptr, &err) != SQLITE_OK) {
+    Error e{ErrorCode::kIo, path_ + ": " + (err ? err : "sqlite error")};
+    sqlite3_free(err);
+    return e;
+  }
+  return OkStatus();
+}
+
+Status Storage::Migrate() {
+  Stmt v(db_, "PRAGMA user_version");
+  if (!v.ok() || v.Step() != SQLITE_ROW) return v.Fail("reading the schema version");
+  version_ = static_cast<int>(v.I(0));
+  if (version_ > kSchemaVersion)
+    return Error{ErrorCode::kInvalidArgument,
+                 path_ + " has schema version " + std::to_string(version_) +
+                     ", newer than this program's " + std::to_string(kSchemaVersion) +
+                     "; use a newer gonio"};
+  while (version_ < kSchemaVersion) {
+    // Each migration and its version bump commit together.
+    const std::string sql = std::string("BEGIN IMMEDIATE;") + kMigrations[version_] +
+                            "PRAGMA user_version=" + std::to_string(version_ + 1) + ";COMMIT;";
+    if (Status s = Exec(sql); !s.ok()) {
+      (void)Exec("ROLLBACK");
+      return s;
+    }
+    ++version_;
+  }
+  return OkStatus();
+}
+
+Result<std::int64_t> Storage::EnsureSpecimen(const Specimen& sp) {
+  Stmt ins(db_,
+           "INSERT INTO specimens(name, material, thickness_mm, eta) VALUES(?,?,?,?) "
+           "ON CONFLICT(name) DO UPDATE SET material=excluded.material, "
+           "thickness_mm=excluded.thickness_mm, eta=excluded.eta");
+  ins.Bind(1, sp.name).Bind(2, sp.material).Bind(3, sp.thickness_mm).Bind(4, sp.eta);
+  if (ins.Step() != SQLITE_DONE) return ins.Fail("storing specimen " + sp.name);
+  Stmt q(db_, "SELECT id FROM specimens WHERE name=?");
+  q.Bind(1, sp.name);
+  if (q.Step() != SQLITE_ROW) return q.Fail("reading specimen " + sp.name);
+  return q.I(0);
+}
+
+Result<std::int64_t> Storage::StoreConfig(const std::string& text) {
+  const std::string h = Hash(text);
+  Stmt ins(db_, "INSERT OR IGNORE INTO instrument_configs(hash, content) VALUES(?,?)");
+  ins.Bind(1, h).Bind(2, text);
+  if (ins.Step() != SQLITE_DONE) return ins.Fail("storing the instrument config");
+  Stmt q(db_, "SELECT id FROM instrument_configs WHERE hash=?");
+  q.Bind(1, h);
+  if (q.Step() != SQLITE_ROW) return q.Fail("reading the instrument config");
+  return q.I(0);
+}
+
+Result<std::int64_t> Storage::CreateRun(std::int64_t specimen_id, std::int64_t config_id,
+                                        const std::string& plan_text,
+                                        const std::vector<PlannedPoint>& points) {
+  if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s.error();
+  auto fail = [&](const Error& e) {
+    (void)Exec("ROLLBACK");
+    return e;
+  };
+  Stmt run(db_, "INSERT INTO runs(specimen_id, config_id, plan, status) VALUES(?,?,?,'planned')");
+  run.Bind(1, specimen_id).Bind(2, config_id).Bind(3, plan_text);
+  if (run.Step() != SQLITE_DONE) return fail(run.Fail("creating the run"));
+  const std::int64_t id = sqlite3_last_insert_rowid(db_);
+  for (const PlannedPoint& p : points) {
+    Stmt pt(db_,
+            "INSERT INTO plan_points(run_id, idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, "
+            "arm_deg, azimuth_deg, status, reason) VALUES(?,?,?,?,?,?,?,?,?,?)");
+    pt.Bind(1, id).Bind(2, p.index).Bind(3, p.theta_l_deg).Bind(4, p.theta_v_deg);
+    pt.Bind(5, p.phi_deg).Bind(6, p.stage.sample_deg).Bind(7, p.stage.arm_deg);
+    pt.Bind(8, p.stage.azimuth_deg).Bind(9, std::string(p.skipped ? "skipped" : "pending"));
+    pt.Bind(10, p.reason);
+    if (pt.Step() != SQLITE_DONE) return fail(pt.Fail("storing plan point"));
+  }
+  if (Status s = Exec("COMMIT"); !s.ok()) return fail(s.error());
+  return id;
+}
+
+Status Storage::SetRunStatus(std::int64_t run, const std::string& status) {
+  const bool final_state = status == "done" || status == "aborted" || status == "failed";
+  Stmt u(db_, final_state ? "UPDATE runs SET status=?, "
+                            "finished_at=strftime('%Y-%m-%dT%H:%M:%fZ','now') WHERE id=?"
+                          : "UPDATE runs SET status=? WHERE id=?");
+  u.Bind(1, status).Bind(2, run);
+  if (u.Step() != SQLITE_DONE) return u.Fail("setting run " + std::to_string(run) + " " + status);
+  return OkStatus();
+}
+
+Status Storage::SetMonitorReference(std::int64_t run, double watts) {
+  Stmt u(db_, "UPDATE runs SET monitor_reference_w=? WHERE id=?");
+  u.Bind(1, watts).Bind(2, run);
+  if (u.Step() != SQLITE_DONE) return u.Fail("storing the monitor reference");
+  return OkStatus();
+}
+
+Status Storage::AddEvent(std::int64_t run, const std::string& kind, const std::string& detail) {
+  Stmt i(db_, "INSERT INTO run_events(run_id, kind, detail) VALUES(?,?,?)");
+  i.Bind(1, run).Bind(2, kind).Bind(3, detail);
+  if (i.Step() != SQLITE_DONE) return i.Fail("storing a run event");
+  return OkStatus();
+}
+
+Result<RunInfo> Storage::GetRun(std::int64_t run) {
+  Stmt q(db_,
+         "SELECT r.id, s.name, r.status, r.monitor_reference_w, r.plan, "
+         "(SELECT count(*) FROM plan_points WHERE run_id=r.id), "
+         "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='done'), "
+         "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='skipped') "
+         "FROM runs r JOIN specimens s ON s.id=r.specimen_id WHERE r.id=?");
+  q.Bind(1, run);
+  if (q.Step() != SQLITE_ROW)
+    return Error{ErrorCode::kInvalidArgument, "no run " + std::to_string(run) + " in " + path_};
+  RunInfo i;
+  i.id = q.I(0);
+  i.specimen = q.T(1);
+  i.status = q.T(2);
+  if (!q.Null(3)) i.monitor_reference_w = q.D(3);
+  i.plan_text = q.T(4);
+  i.points_total = static_cast<int>(q.I(5));
+  i.points_done = static_cast<int>(q.I(6));
+  i.points_skipped = static_cast<int>(q.I(7));
+  return i;
+}
+
+Result<std::optional<std::int64_t>> Storage::UnfinishedRun() {
+  Stmt q(db_, "SELECT id FROM runs WHERE status IN ('running','paused') ORDER BY id DESC LIMIT 1");
+  const int rc = q.Step();
+  if (rc == SQLITE_ROW) return std::optional<std::int64_t>(q.I(0));
+  if (rc != SQLITE_DONE) return q.Fail("looking for an unfinished run");
+  return std::optional<std::int64_t>();
+}
+
+Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending_only) {
+  Stmt q(db_, pending_only
+                  ? "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
+                    "azimuth_deg, status, reason FROM plan_points WHERE run_id=? AND "
+                    "status='pending' ORDER BY idx"
+                  : "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
+                    "azimuth_deg, status, reason FROM plan_points WHERE run_id=? ORDER BY idx");
+  q.Bind(1, run);
+  std::vector<PlannedPoint> out;
+  int rc;
+  while ((rc = q.Step()) == SQLITE_ROW) {
+    PlannedPoint p;
+    p.index = static_cast<int>(q.I(0));
+    p.theta_l_deg = q.D(1);
+    p.theta_v_deg = q.D(2);
+    p.phi_deg = q.D(3);
+    p.stage = {q.D(4), q.D(5), q.D(6)};
+    p.skipped = q.T(7) == "skipped";
+    p.reason = q.T(8);
+    out.push_back(p);
+  }
+  if (rc != SQLITE_DONE) return q.Fail("reading plan points");
+  return out;
+}
+
+Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
+  if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s;
+  auto fail = [&](const Error& e) -> Status {
+    (void)Exec("ROLLBACK");
+    return e;
+  };
+  Stmt i(db_,
+         "INSERT INTO measurements(run_id, idx, sample_read_deg, arm_read_deg, azimuth_read_deg, "
+         "exposure_s, frames, temperature_c, monitor_w, rect_mean, rect_sd, pixel_var, "
+         "rect_pixels, rect_saturated, dark_id, value, sigma, flags, ranging_tries) "
+         "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
+  i.Bind(1, run).Bind(2, m.index).Bind(3, m.sample_read_deg).Bind(4, m.arm_read_deg);
+  i.Bind(5, m.azimuth_read_deg).Bind(6, m.exposure_s).Bind(7, m.frames).Bind(8, m.temperature_c);
+  i.Bind(9, m.monitor_w).Bind(10, m.rect_mean).Bind(11, m.rect_sd).Bind(12, m.pixel_var);
+  i.Bind(13, m.rect_pixels).Bind(14, m.rect_saturated);
+  if (m.dark_id > 0) {
+    i.Bind(15, m.dark_id);
+  } else {
+    i.Bind(15, std::optional<double>());  // no dark: NULL
+  }
+  i.Bind(16, m.value);
+  i.Bind(17, m.sigma).Bind(18, m.flags).Bind(19, m.ranging_tries);
+  if (i.Step() != SQLITE_DONE)
+    return fail(
+        i.Fail("storing point " + std::to_string(m.index) + " of run " + std::to_string(run)));
+  Stmt u(db_, "UPDATE plan_points SET status='done' WHERE run_id=? AND idx=? AND status='pending'");
+  u.Bind(1, run).Bind(2, m.index);
+  if (u.Step() != SQLITE_DONE || sqlite3_changes(db_) != 1)
+    return fail(Error{ErrorCode::kInvalidArgument, "point " + std::to_string(m.index) + " of run " +
+                                                       std::to_string(run) + " is not pending"});
+  if (Status s = Exec("COMMIT"); !s.ok()) return fail(s.error());
+  return OkStatus();
+}
+
+Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
+  Stmt q(db_,
+         "SELECT p.idx, p.theta_l_deg, p.theta_v_deg, p.phi_deg, p.sample_deg, p.arm_deg, "
+         "p.azimuth_deg, m.sample_read_deg, m.arm_read_deg, m.azimuth_read_deg, m.exposure_s, "
+         "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
+         "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries "
+         "FROM measurements m JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
+         "WHERE m.run_id=? ORDER BY p.idx");
+  q.Bind(1, run);
+  std::vector<MeasurementRow> out;
+  int rc;
+  while ((rc = q.Step()) == SQLITE_ROW) {
+    MeasurementRow r;
+    r.point.index = r.m.index = static_cast<int>(q.I(0));
+    r.point.theta_l_deg = q.D(1);
+    r.point.theta_v_deg = q.D(2);
+    r.point.phi_deg = q.D(3);
+    r.point.stage = {q.D(4), q.D(5), q.D(6)};
+    r.m.sample_read_deg = q.D(7);
+    r.m.arm_read_deg = q.D(8);
+    r.m.azimuth_read_deg = q.D(9);
+    r.m.exposure_s = q.D(10);
+    r.m.frames = static_cast<int>(q.I(11));
+    r.m.temperature_c = q.D(12);
+    if (!q.Null(13)) r.m.monitor_w = q.D(13);
+    r.m.rect_mean = q.D(14);
+    r.m.rect_sd = q.D(15);
+    r.m.pixel_var = q.D(16);
+    r.m.rect_pixels = static_cast<int>(q.I(17));
+    r.m.rect_saturated = static_cast<int>(q.I(18));
+    r.m.dark_id = q.I(19);
+    r.m.value = q.D(20);
+    r.m.sigma = q.D(21);
+    r.m.flags = static_cast<int>(q.I(22));
+    r.m.ranging_tries = static_cast<int>(q.I(23));
+    out.push_back(r);
+  }
+  if (rc != SQLITE_DONE) return q.Fail("reading measurements");
+  return out;
+}
+
+Result<std::int64_t> Storage::StoreDark(const DarkRecord& d) {
+  Stmt i(db_,
+         "INSERT INTO darks(exposure_s, temperature_c, frames, rect_mean, pixel_var, "
+         "taken_unix_s) VALUES(?,?,?,?,?,?)");
+  i.Bind(1, d.exposure_s).Bind(2, d.temperature_c).Bind(3, d.frames).Bind(4, d.mean);
+  i.Bind(5, d.pixel_var).Bind(6, d.taken_unix_s);
+  if (i.Step() != SQLITE_DONE) return i.Fail("storing a dark frame");
+  return sqlite3_last_insert_rowid(db_);
+}
+
+Status Storage::ExportCsv(std::int64_t run, const std::string& path) {
+  auto rows = Measurements(run);
+  if (!rows.ok()) return rows.error();
+  std::ofstream out(path);
+  if (!out) return Error{ErrorCode::kIo, "cannot write " + path};
+  out << "# run " << run << ": dark-subtracted, monitor-normalised counts per second\n"
+      << "theta_l_deg,theta_v_deg,phi_l_deg,phi_v_deg,value,sigma,exposure_s,frames,"
+         "rect_mean_adu,temperature_c,monitor_w,flags\n";
+  out.precision(9);
+  for (const MeasurementRow& r : *rows) {
+    out << r.point.theta_l_deg << "," << r.point.theta_v_deg << "," << r.point.phi_deg << ","
+        << r.point.phi_deg << "," << r.m.value << "," << r.m.sigma << "," << r.m.exposure_s << ","
+        << r.m.frames << "," << r.m.rect_mean << "," << r.m.temperature_c << ","
+        << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << "\n";
+  }
+  if (!out) return Error{ErrorCode::kIo, "writing " + path + " failed"};
+  return OkStatus();
+}
+
+}  // namespace gonio::acquisition

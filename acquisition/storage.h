@@ -1,0 +1,107 @@
+// The instrument's SQLite database (WAL): configurations, specimens, runs, their planned points,
+// measurements, dark frames' statistics, calibrations and fit results, with a schema version and
+// migrations (PRAGMA user_version). Each point is stored in one transaction with its plan point
+// marked done, so a run killed at any moment resumes from what is committed: done points are not
+// measured twice and none is lost. Schema: acquisition/README.md.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "acquisition/plan.h"
+#include "common/result.h"
+
+struct sqlite3;
+
+namespace gonio::acquisition {
+
+inline constexpr int kSchemaVersion = 1;
+
+struct RunInfo {
+  std::int64_t id = 0;
+  std::string specimen;
+  std::string status;  // planned | running | paused | done | aborted | failed
+  int points_total = 0, points_done = 0, points_skipped = 0;
+  std::optional<double> monitor_reference_w;
+  std::string plan_text;
+};
+
+struct DarkRecord {
+  std::int64_t id = 0;
+  double exposure_s = 0, temperature_c = 0;
+  int frames = 0;
+  double mean = 0;       // the rectangle's mean, ADU
+  double pixel_var = 0;  // pooled per-pixel variance between frames, ADU^2
+  double taken_unix_s = 0;
+};
+
+struct Measurement {
+  int index = 0;
+  double sample_read_deg = 0, arm_read_deg = 0, azimuth_read_deg = 0;
+  double exposure_s = 0;
+  int frames = 0;
+  double temperature_c = 0;
+  std::optional<double> monitor_w;
+  double rect_mean = 0, rect_sd = 0;  // ADU, mean over frames; sd of the frames' means
+  double pixel_var = 0;               // pooled per-pixel variance between frames, ADU^2
+  int rect_pixels = 0, rect_saturated = 0;
+  std::int64_t dark_id = 0;
+  double value = 0, sigma = 0;  // dark-subtracted, normalised counts per second
+  int flags = 0;                // kFlag*
+  int ranging_tries = 0;
+};
+inline constexpr int kFlagAtMaxExposure = 1;  // underexposed even at the longest exposure
+
+struct MeasurementRow {
+  PlannedPoint point;
+  Measurement m;
+};
+
+class Storage {
+ public:
+  // Opens or creates the database and migrates it to kSchemaVersion. A database newer than this
+  // program is refused (kInvalidArgument) rather than touched.
+  static Result<std::unique_ptr<Storage>> Open(const std::string& path);
+  ~Storage();
+  Storage(const Storage&) = delete;
+  Storage& operator=(const Storage&) = delete;
+
+  int schema_version() const { return version_; }
+
+  Result<std::int64_t> EnsureSpecimen(const Specimen& s);
+  // The instrument configuration's text, stored once per distinct content (by its hash).
+  Result<std::int64_t> StoreConfig(const std::string& text);
+  Result<std::int64_t> CreateRun(std::int64_t specimen_id, std::int64_t config_id,
+                                 const std::string& plan_text,
+                                 const std::vector<PlannedPoint>& points);
+  Status SetRunStatus(std::int64_t run, const std::string& status);
+  Status SetMonitorReference(std::int64_t run, double watts);
+  Status AddEvent(std::int64_t run, const std::string& kind, const std::string& detail);
+  Result<RunInfo> GetRun(std::int64_t run);
+  // The most recent run left running or paused (an interrupted one), if any.
+  Result<std::optional<std::int64_t>> UnfinishedRun();
+
+  Result<std::vector<PlannedPoint>> Points(std::int64_t run, bool pending_only);
+  // Stores the measurement and marks its point done, atomically.
+  Status StoreMeasurement(std::int64_t run, const Measurement& m);
+  Result<std::vector<MeasurementRow>> Measurements(std::int64_t run);
+
+  Result<std::int64_t> StoreDark(const DarkRecord& d);
+
+  // The run's measurements as the fitter's CSV (fitting/samples_csv.h): theta_l_deg, theta_v_deg,
+  // phi_l_deg, phi_v_deg, value, sigma, then the raw statistics.
+  Status ExportCsv(std::int64_t run, const std::string& path);
+
+ private:
+  Storage() = default;
+  Status Exec(const std::string& sql);
+  Status Migrate();
+  sqlite3* db_ = nullptr;
+  std::string path_;
+  int version_ = 0;
+};
+
+}  // namespace gonio::acquisition

@@ -1,0 +1,196 @@
+// gonio-acquire: runs a measurement plan on the instrument and stores it in SQLite, without the
+// daemon (issue #6; goniod of #7 runs the same engine behind its API).
+//
+//   gonio-acquire -c config/instrument.toml --db runs.sqlite run plan.toml [--dry-run]
+//   gonio-acquire ... resume [RUN]        # an interrupted run (default: the latest one)
+//   gonio-acquire --db runs.sqlite export RUN --out run.csv    # the fitter's CSV
+//   gonio-acquire --db runs.sqlite status RUN
+//
+// Ctrl-C (SIGINT) or SIGTERM pauses after the current point is stored; resume continues it.
+// Exit codes: 0 done; 1 a device or storage error (the run is left paused); 2 bad input;
+// 3 paused by a signal.
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+#include "acquisition/engine.h"
+#include "acquisition/plan.h"
+#include "acquisition/storage.h"
+#include "config/instrument_config.h"
+
+namespace {
+
+using namespace gonio;
+using namespace gonio::acquisition;
+
+std::atomic<bool> g_stop{false};
+void OnSignal(int) { g_stop = true; }
+
+int Fail(const Error& e) {
+  std::cerr << "gonio-acquire: " << e.ToString() << "\n";
+  return e.code == ErrorCode::kInvalidArgument ? 2 : 1;
+}
+
+std::string Duration(double s) {
+  char b[32];
+  if (s < 120) {
+    std::snprintf(b, sizeof b, "%.0f s", s);
+  } else if (s < 7200) {
+    std::snprintf(b, sizeof b, "%.1f min", s / 60);
+  } else {
+    std::snprintf(b, sizeof b, "%.1f h", s / 3600);
+  }
+  return b;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Run a measurement plan on the instrument into SQLite"};
+  app.require_subcommand(1);
+  std::string config_path, samples_path = "config/samples.toml", db_path;
+  app.add_option("-c,--config", config_path, "instrument config")->check(CLI::ExistingFile);
+  app.add_option("--samples", samples_path, "specimen catalogue")->check(CLI::ExistingFile);
+  app.add_option("--db", db_path, "SQLite database (created if missing)")->required();
+  std::string plan_path;
+  bool dry_run = false;
+  CLI::App* run_cmd = app.add_subcommand("run", "measure a plan");
+  run_cmd->add_option("plan", plan_path)->required()->check(CLI::ExistingFile);
+  run_cmd->add_flag("--dry-run", dry_run, "validate, list what would happen, measure nothing");
+  std::int64_t run_id = 0;
+  CLI::App* resume_cmd = app.add_subcommand("resume", "continue an interrupted run");
+  resume_cmd->add_option("run", run_id, "run id (default: the latest unfinished)");
+  std::string out;
+  CLI::App* export_cmd = app.add_subcommand("export", "a run as the fitter's CSV");
+  export_cmd->add_option("run", run_id)->required();
+  export_cmd->add_option("--out", out)->required();
+  CLI::App* status_cmd = app.add_subcommand("status", "a run's state");
+  status_cmd->add_option("run", run_id)->required();
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+
+  auto db = Storage::Open(db_path);
+  if (!db.ok()) return Fail(db.error());
+  Storage& store = **db;
+  if (*export_cmd) {
+    Status s = store.ExportCsv(run_id, out);
+    if (!s.ok()) return Fail(s.error());
+    std::cout << "wrote " << out << "\n";
+    return 0;
+  }
+  if (*status_cmd) {
+    auto info = store.GetRun(run_id);
+    if (!info.ok()) return Fail(info.error());
+    std::cout << "run " << info->id << " (" << info->specimen << "): " << info->status << ", "
+              << info->points_done << "/" << info->points_total - info->points_skipped
+              << " points, " << info->points_skipped << " skipped\n";
+    return 0;
+  }
+  if (config_path.empty()) return Fail(InvalidArgument("run and resume need --config"));
+  auto cfg = config::LoadInstrumentConfig(config_path);
+  if (!cfg.ok()) return Fail(cfg.error());
+  auto specimens = LoadSpecimens(samples_path);
+  if (!specimens.ok()) return Fail(specimens.error());
+
+  // The plan: a new one from its file, or a resumed run's own stored text.
+  PlanContext ctx;
+  ctx.specimens = *specimens;
+  ctx.axes = cfg->axes;
+  std::string plan_file = plan_path;
+  if (*resume_cmd) {
+    if (run_id == 0) {
+      auto latest = store.UnfinishedRun();
+      if (!latest.ok()) return Fail(latest.error());
+      if (!*latest) return Fail(InvalidArgument("no interrupted run in " + db_path));
+      run_id = **latest;
+    }
+    auto info = store.GetRun(run_id);
+    if (!info.ok()) return Fail(info.error());
+    if (info->status == "done") {
+      std::cout << "run " << run_id << " is already done\n";
+      return 0;
+    }
+    plan_file = db_path + ".plan-" + std::to_string(run_id) + ".toml";
+    std::ofstream(plan_file) << info->plan_text;
+  }
+  // The devices open before the plan is checked against the camera's image: nothing moves yet.
+  std::unique_ptr<drivers::Camera> camera;
+  std::unique_ptr<drivers::StageController> stages;
+  config::OpenedMonitor monitor;
+  if (!dry_run) {
+    auto cam = config::OpenCamera(*cfg);
+    if (!cam.ok()) return Fail(cam.error());
+    camera = std::move(cam).value();
+    auto size = camera->ImageSize();
+    if (!size.ok()) return Fail(size.error());
+    ctx.image_width = size->width;
+    ctx.image_height = size->height;
+  }
+  auto plan = LoadPlan(plan_file, ctx);
+  if (!plan.ok()) return Fail(plan.error());
+  const auto points = ExpandPoints(*plan, ctx);
+  int skipped = 0;
+  for (const auto& p : points) skipped += p.skipped;
+  const double estimate = EstimateSeconds(*plan, points, cfg->axes, plan->exposure.initial_s);
+  if (dry_run || *run_cmd) {
+    std::cout << "plan " << plan_path << ": " << plan->specimen.name << ", "
+              << points.size() - skipped << " points (" << skipped << " skipped), about "
+              << Duration(estimate) << " of motion and exposure\n";
+    for (const auto& p : points)
+      if (p.skipped)
+        std::cout << "  skip theta_l " << p.theta_l_deg << " theta_v " << p.theta_v_deg << ": "
+                  << p.reason << "\n";
+    if (dry_run) return 0;
+  }
+  auto st = config::OpenStages(*cfg);
+  if (!st.ok()) return Fail(st.error());
+  stages = std::move(st).value();
+  if (cfg->monitor.enabled) {
+    auto m = config::OpenMonitor(*cfg);
+    if (!m.ok()) return Fail(m.error());
+    monitor = std::move(m).value();
+  }
+  if (*run_cmd) {
+    auto spec = store.EnsureSpecimen(plan->specimen);
+    if (!spec.ok()) return Fail(spec.error());
+    std::ifstream in(config_path);
+    std::stringstream text;
+    text << in.rdbuf();
+    auto cid = store.StoreConfig(text.str());
+    if (!cid.ok()) return Fail(cid.error());
+    auto id = store.CreateRun(*spec, *cid, plan->text, points);
+    if (!id.ok()) return Fail(id.error());
+    run_id = *id;
+    std::cout << "run " << run_id << " created in " << db_path << std::endl;
+  } else {
+    std::cout << "resuming run " << run_id << std::endl;
+  }
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  EngineOptions eo;
+  eo.linear_limit_adu = cfg->camera.linear_limit_adu;
+  Engine engine(*stages, *camera, monitor.monitor.get(), store, eo);
+  const Status s = engine.Run(run_id, *plan, g_stop, [](const Progress& p) {
+    std::printf(
+        "[%4d/%d] theta_l %5.1f theta_v %6.1f  exposure %-9.4g s  value %.5g +- %.2g  ETA %s\n",
+        p.done, p.total, p.point.theta_l_deg, p.point.theta_v_deg, p.last.exposure_s, p.last.value,
+        p.last.sigma, Duration(p.eta_s).c_str());
+    std::fflush(stdout);
+  });
+  if (!s.ok()) return Fail(s.error());
+  auto info = store.GetRun(run_id);
+  if (info.ok() && info->status == "paused") {
+    std::cout << "run " << run_id << " paused after " << info->points_done
+              << " points; continue with: gonio-acquire ... resume " << run_id << "\n";
+    return 3;
+  }
+  std::cout << "run " << run_id << " done\n";
+  return 0;
+}

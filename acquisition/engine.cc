@@ -113,7 +113,9 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
     const double peak = probe.Max() - dark->mean;
     m.ranging_tries = tries;
     const bool too_bright = probe.Max() >= dark->mean + x.saturation * range;
-    const bool too_dim = peak < x.floor * range && t < x.max_s;
+    // Dim: below a quarter of the target (counts are cheap while exposures are short), or below
+    // the floor; at max_s there is nothing more to gain.
+    const bool too_dim = peak < std::max(x.floor, 0.25 * x.target) * range && t < x.max_s;
     if (tries >= o_.max_ranging_tries || (!too_bright && !too_dim)) {
       if (too_bright)
         return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +

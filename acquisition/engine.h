@@ -1,7 +1,8 @@
 // The sweep engine: measures a run's pending points in order, each one committed when complete,
 // through the driver interfaces only. Per point: all axes move together, the readback is stored;
-// the exposure is auto-ranged (no rectangle pixel above the linear range, the brightest pixel
-// above the floor unless at the longest exposure); N frames are accumulated; a dark at the same
+// the exposure is auto-ranged on a ladder of 8 steps per decade (no rectangle pixel past
+// `saturation` of the linear range; the brightest pixel brought above a quarter of `target`,
+// and flagged if it stays below `floor` at max_s); N frames are accumulated; a dark at the same
 // exposure and temperature comes from the dark library (reused while fresh, retaken when stale
 // or when the temperature moved); the source monitor, when present, normalises by the lamp's
 // output relative to the run's first reading.

@@ -137,32 +137,50 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
   }
   last_exposure_s_ = t;
 
-  auto before = MonitorW();
-  if (!before.ok()) return before.error();
+  // The monitor is read before every frame and after the last: its mean normalises the point,
+  // and its spread (flicker the exposures average out but a short reading does not) enters sigma.
+  std::vector<double> monitor;
   RectAccumulator acc(rect, limit);
-  acc.Add(first->image);
-  first.reset();  // frames are not kept beyond their reduction
-  for (int k = 1; k < x.frames; ++k) {
+  for (int k = 0; k < x.frames; ++k) {
+    if (monitor_ != nullptr) {
+      auto w = MonitorW();
+      if (!w.ok()) return w.error();
+      monitor.push_back(*w);
+    }
+    if (k == 0) {
+      acc.Add(first->image);
+      first.reset();  // frames are not kept beyond their reduction
+      continue;
+    }
     auto f = camera_.Snap();
     if (!f.ok()) return f.error();
     acc.Add(f->image);
   }
-  auto after = MonitorW();
-  if (!after.ok()) return after.error();
+  if (monitor_ != nullptr) {
+    auto w = MonitorW();
+    if (!w.ok()) return w.error();
+    monitor.push_back(*w);
+  }
   auto temp = camera_.TemperatureC();
   if (!temp.ok()) return temp.error();
 
-  double norm = 1;
+  double norm = 1, monitor_rel_var = 0;
   if (monitor_ != nullptr) {
-    m.monitor_w = 0.5 * (*before + *after);
+    double sum = 0, sum2 = 0;
+    for (double w : monitor) sum += w, sum2 += w * w;
+    const double n = static_cast<double>(monitor.size());
+    m.monitor_w = sum / n;
     if (!(*m.monitor_w > 0))
       return Error{ErrorCode::kDeviceFault,
                    "source monitor reads " + std::to_string(*m.monitor_w) + " W: lamp off?"};
-    if (!monitor_reference_) {
+    // The variance of the readings' mean, relative: (sum2/n - mean^2) / (n - 1) / mean^2.
+    monitor_rel_var =
+        std::max(0.0, sum2 / n - (sum / n) * (sum / n)) / (n - 1) / (*m.monitor_w * *m.monitor_w);
+    if (!monitor_reference_) {  // kept for the record: the run's first reading
       monitor_reference_ = *m.monitor_w;
       if (Status s = db_.SetMonitorReference(run_, *monitor_reference_); !s.ok()) return s.error();
     }
-    norm = *m.monitor_w / *monitor_reference_;
+    norm = *m.monitor_w / kMonitorUnitW;  // counts per second per mW at the monitor
   }
   m.exposure_s = t;
   m.frames = acc.frames();
@@ -177,7 +195,7 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
   m.value = (m.rect_mean - dark->mean) / t / norm;
   const double var_mean = m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) +
                           dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames));
-  m.sigma = std::sqrt(var_mean) / t / norm;
+  m.sigma = std::sqrt(var_mean / (t * norm * t * norm) + m.value * m.value * monitor_rel_var);
   return m;
 }
 

@@ -4,12 +4,13 @@
 // `saturation` of the linear range; the brightest pixel brought above a quarter of `target`,
 // and flagged if it stays below `floor` at max_s); N frames are accumulated; a dark at the same
 // exposure and temperature comes from the dark library (reused while fresh, retaken when stale
-// or when the temperature moved); the source monitor, when present, normalises by the lamp's
-// output relative to the run's first reading.
+// or when the temperature moved); the source monitor, when present, is read around every frame
+// and normalises by the lamp's output.
 //
-// Stored value: (rectangle mean - dark mean) / exposure / (monitor / monitor reference), in
-// counts per second, proportional to BTDF * cos(theta_l) (REFERENCE.md section 1). Its sigma comes
-// from the pooled per-pixel variance of the frames and of the dark.
+// Stored value: (rectangle mean - dark mean) / exposure, in counts per second, divided by the
+// monitor's mean reading in mW when there is a monitor (so runs on different days compare),
+// proportional to BTDF * cos(theta_l) (REFERENCE.md section 1). Its sigma comes from the pooled
+// per-pixel variance of the frames and of the dark, and the spread of the monitor's readings.
 #pragma once
 
 #include <atomic>
@@ -25,6 +26,8 @@
 #include "drivers/stage/stage.h"
 
 namespace gonio::acquisition {
+
+inline constexpr double kMonitorUnitW = 1e-3;  // values are per mW at the monitor
 
 struct EngineOptions {
   double linear_limit_adu = 65535;  // the sensor's linear range (full well), raw ADU

@@ -76,6 +76,9 @@ int main(int argc, char** argv) {
     return app.exit(e) == 0 ? 0 : 2;
   }
 
+  // From here on a signal pauses instead of killing: the run is stopped after its current point.
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
   auto db = Storage::Open(db_path);
   if (!db.ok()) return Fail(db.error());
   Storage& store = **db;
@@ -108,7 +111,10 @@ int main(int argc, char** argv) {
     if (run_id == 0) {
       auto latest = store.UnfinishedRun();
       if (!latest.ok()) return Fail(latest.error());
-      if (!*latest) return Fail(InvalidArgument("no interrupted run in " + db_path));
+      if (!*latest) {
+        std::cout << "no interrupted run in " << db_path << ": nothing to resume\n";
+        return 0;
+      }
       run_id = **latest;
     }
     auto info = store.GetRun(run_id);
@@ -172,8 +178,6 @@ int main(int argc, char** argv) {
   } else {
     std::cout << "resuming run " << run_id << std::endl;
   }
-  std::signal(SIGINT, OnSignal);
-  std::signal(SIGTERM, OnSignal);
   EngineOptions eo;
   eo.linear_limit_adu = cfg->camera.linear_limit_adu;
   Engine engine(*stages, *camera, monitor.monitor.get(), store, eo);

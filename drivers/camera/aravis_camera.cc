@@ -42,8 +42,18 @@ Result<std::unique_ptr<AravisCamera>> AravisCamera::Open(CameraSettings settings
     return InvalidArgument("camera binning must be >= 1, buffers >= 2, retries >= 0");
   std::unique_ptr<AravisCamera> c(new AravisCamera());
   c->s_ = std::move(settings);
-  if (Status s = c->Connect(); !s.ok()) return s.error();
-  return c;
+  // A controller that died without releasing the camera (a killed process) keeps its control
+  // privilege until the camera's heartbeat timeout (about 3 s for GigE Vision): until then
+  // writes time out. Keep trying for open_timeout_s.
+  const auto deadline =
+      std::chrono::steady_clock::now() + std::chrono::duration<double>(c->s_.open_timeout_s);
+  for (;;) {
+    Status s = c->Connect();
+    if (s.ok()) return c;
+    c->Disconnect();
+    if (std::chrono::steady_clock::now() > deadline) return s.error();
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
 }
 
 AravisCamera::~AravisCamera() { Disconnect(); }

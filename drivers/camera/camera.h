@@ -40,6 +40,7 @@ struct CameraSettings {
   int buffers = 4;
   double frame_timeout_s = 5;  // beyond the exposure time
   int retries = 2;             // failed or incomplete frames re-triggered, per Snap
+  double open_timeout_s = 10;  // keep trying to open (another controller's control may linger)
   // Where the sensor stops being linear (full well), raw ADU: acquisition keeps pixels below.
   double linear_limit_adu = 65535;
   VendorFeatures features;

@@ -56,6 +56,9 @@ Result<const DarkRecord*> Engine::DarkFor(double exposure_s, const Plan& plan) {
       status = f.error();
       break;
     }
+    ++stats_.dark_frames;
+    stats_.exposure_s += exposure_s;
+    stats_.dark_exposure_s += exposure_s;
     acc.Add(f->image);
   }
   // The shutter reopens whatever happened: a closed shutter must not outlive the dark.
@@ -104,6 +107,8 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
     if (Status s = camera_.SetExposure(t); !s.ok()) return s.error();
     auto f = camera_.Snap();
     if (!f.ok()) return f.error();
+    ++stats_.ranging_frames;  // the accepted one is counted as averaged below
+    stats_.exposure_s += t;
     auto d = DarkFor(t, plan);
     if (!d.ok()) return d.error();
     dark = *d;
@@ -147,13 +152,16 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
       if (!w.ok()) return w.error();
       monitor.push_back(*w);
     }
+    ++stats_.frames;
     if (k == 0) {
+      --stats_.ranging_frames;  // the last ranging frame is the first averaged one
       acc.Add(first->image);
       first.reset();  // frames are not kept beyond their reduction
       continue;
     }
     auto f = camera_.Snap();
     if (!f.ok()) return f.error();
+    stats_.exposure_s += t;
     acc.Add(f->image);
   }
   if (monitor_ != nullptr) {
@@ -232,6 +240,7 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
                                        std::to_string(p.index) + ": " + m.error().message};
     }
     if (Status s = db_.StoreMeasurement(run, *m); !s.ok()) return s;
+    ++stats_.points;
     ++pr.done;
     ++measured_here;
     if (progress) {

@@ -34,6 +34,14 @@ struct EngineOptions {
   int max_ranging_tries = 12;
 };
 
+// What the engine spent its time on (for the efficiency benchmark and logs).
+struct EngineStats {
+  int points = 0;
+  int frames = 0, ranging_frames = 0, dark_frames = 0;  // frames = the averaged ones
+  double exposure_s = 0;       // summed over every frame taken (averaged, ranging, dark)
+  double dark_exposure_s = 0;  // of which darks
+};
+
 struct Progress {
   int done = 0, total = 0;  // measured points of the run (skipped ones not counted)
   PlannedPoint point;
@@ -53,6 +61,8 @@ class Engine {
   Status Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
              const std::function<void(const Progress&)>& progress = {});
 
+  const EngineStats& stats() const { return stats_; }
+
  private:
   Result<Measurement> MeasurePoint(const PlannedPoint& p, const Plan& plan);
   Result<const DarkRecord*> DarkFor(double exposure_s, const Plan& plan);
@@ -67,6 +77,7 @@ class Engine {
   std::optional<double> monitor_reference_;
   double last_exposure_s_ = 0;
   std::map<std::int64_t, DarkRecord> darks_;  // by exposure in microseconds
+  EngineStats stats_;
 };
 
 }  // namespace gonio::acquisition

@@ -15,7 +15,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene sweep)
 # Debian's matplotlib/scipy are installed for the system interpreter (DESIGN.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -40,7 +40,9 @@ for part in "${parts[@]}"; do
         out/bench/truth_failure.png ;;
     scene)
       build-release/bench/scene_rectangle | tee out/bench/scene_rectangle.md ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene)" >&2
+    sweep)  # holds the GigE Vision port: no other simulated camera may run meanwhile
+      build-release/bench/acquisition_sweep | tee out/bench/acquisition_sweep.md ;;
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, sweep)" >&2
        exit 2 ;;
   esac
 done

@@ -169,8 +169,10 @@ TEST_F(CameraGigEFaults, FaultPlanFramesArriveIncompleteOrNeverAndTheCoolerFails
   EXPECT_TRUE(status == ARV_BUFFER_STATUS_MISSING_PACKETS || status == ARV_BUFFER_STATUS_TIMEOUT)
       << status;
   EXPECT_FALSE(Snap(10000, 3000, &status).empty());  // frame 2: whole again
-  EXPECT_TRUE(Snap(10000, 800, &status).empty());    // frame 3: never leaves: no buffer at all
-  EXPECT_EQ(status, ARV_BUFFER_STATUS_UNKNOWN);
+  // Frame 3 never leaves the camera: no frame comes (on a loaded machine Aravis may hand back
+  // an unfilled buffer instead of none; either way no image).
+  EXPECT_TRUE(Snap(10000, 800, &status).empty());
+  EXPECT_NE(status, ARV_BUFFER_STATUS_SUCCESS);
   // The cooler failed at t = 0: switched on, it does not cool.
   GError* e = nullptr;
   ArvDevice* dev = arv_camera_get_device(client_.get());
@@ -179,7 +181,11 @@ TEST_F(CameraGigEFaults, FaultPlanFramesArriveIncompleteOrNeverAndTheCoolerFails
   const double t0 = clock_.Now();
   while (clock_.Now() - t0 < 20) std::this_thread::sleep_for(std::chrono::milliseconds(50));
   EXPECT_GT(arv_device_get_float_feature_value(dev, "DeviceTemperature", &e), 19.0);
-  EXPECT_EQ(plan_->Fired().size(), 3u);
+  // The plan fired all three: the incomplete frame, the dropped one, the cooler.
+  for (int i = 0; i < 100 && plan_->Fired().size() < 3; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  ASSERT_EQ(plan_->Fired().size(), 3u);
+  EXPECT_EQ(plan_->Fired()[2].kind, FaultKind::kFrameDrop);
 }
 
 // The lamp's drift reaches both the camera's frames and the source monitor, in proportion: what

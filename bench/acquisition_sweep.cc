@@ -1,0 +1,124 @@
+// The sweep engine's efficiency on the simulated instrument (issue #6's speed goal): the physical
+// lower bound - the exposure time of every frame taken plus the motion time the stage profiles
+// impose along the chosen order - divided by the run's actual time, both in simulated seconds.
+// The goal is 0.95. It also reports the share of the bound that darks and ranging frames take,
+// and what readout adds, so the gap can be attributed.
+//
+//   build-release/bench/acquisition_sweep [points_per_incidence=17] [clock_speed=100]
+//   ./scripts/bench.sh sweep
+//
+// Holds the GigE Vision port 3956 while it runs (one simulated camera per machine).
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+
+#include "acquisition/engine.h"
+#include "drivers/camera/aravis_camera.h"
+#include "drivers/monitor/scpi_power_meter.h"
+#include "drivers/stage/modbus_stage.h"
+#include "sim/camera/camera.h"
+#include "sim/monitor/power_meter.h"
+#include "sim/stage/modbus_tcp_server.h"
+#include "sim/truth/ground_truth.h"
+
+using namespace gonio;
+using namespace gonio::acquisition;
+
+int main(int argc, char** argv) {
+  const int per_incidence = argc > 1 ? std::atoi(argv[1]) : 17;
+  const double speed = argc > 2 ? std::atof(argv[2]) : 100;
+  if (per_incidence < 2 || !(speed > 0)) {
+    std::fprintf(stderr,
+                 "usage: acquisition_sweep [points_per_incidence >= 2] [clock_speed > 0]\n");
+    return 2;
+  }
+  sim::ScaledClock clock(speed);
+  const sim::Lamp lamp;
+  const sim::Scene scene(sim::BenchGeometry{}, sim::MicrofacetTruth("beckmann", 0.344, 1.51));
+  sim::SimulatedAxis sample_axis(clock, {}, "sample"), arm_axis(clock, {}, "arm");
+  auto tcp = sim::StageModbusTcpServer::Start({&sample_axis, &arm_axis}, 0, nullptr, &clock);
+  auto cam = sim::SimulatedCamera::StartGigE(
+      clock, scene,
+      [&] {
+        return sim::StageAngles{sample_axis.PositionSteps() / 1000,
+                                180 + arm_axis.PositionSteps() / 1000, 0};
+      },
+      lamp);
+  if (!tcp.ok() || !cam.ok()) {
+    std::fprintf(stderr, "cannot start the simulated instrument: %s\n",
+                 (!tcp.ok() ? tcp.error() : cam.error()).message.c_str());
+    return 1;
+  }
+  sim::SimulatedPowerMeter meter_device(clock, lamp);
+  drivers::ScpiPowerMeter meter(meter_device);
+  drivers::ModbusLink link;
+  link.port = (*tcp)->port();
+  drivers::AxisSettings s{.name = "sample", .slave_id = 1};
+  s.min_deg = -90, s.max_deg = 90, s.speed_deg_s = 20, s.acceleration_deg_s2 = 100;
+  drivers::AxisSettings a = s;
+  a.name = "arm", a.slave_id = 2, a.degrees_at_zero = 180, a.min_deg = 0, a.max_deg = 360;
+  auto stages = drivers::ModbusStageController::Open(link, {s, a});
+  auto camera = drivers::AravisCamera::Open({});
+  if (!stages.ok() || !camera.ok()) {
+    std::fprintf(stderr, "cannot open the drivers: %s\n",
+                 (!stages.ok() ? stages.error() : camera.error()).message.c_str());
+    return 1;
+  }
+  const std::string db_path =
+      (std::filesystem::temp_directory_path() / "gonio_sweep_bench.sqlite").string();
+  for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
+  auto db = Storage::Open(db_path);
+  const std::string plan_path = db_path + ".plan.toml";
+  const double step = 40.0 / (per_incidence - 1);
+  std::ofstream(plan_path) << "sample = \"G1\"\n[geometry]\nincidence_deg = [0, 30, 60, 80]\n"
+                           << "view_about = \"refracted\"\nview_from_deg = -20\nview_to_deg = 20\n"
+                           << "view_step_deg = " << step << "\n[exposure]\nframes = 4\n"
+                           << "initial_s = 0.05\nmax_s = 20\n"
+                           << "[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n";
+  PlanContext ctx;
+  ctx.specimens = {{"G1", "glass", 6, 1.51}};
+  ctx.axes = {s, a};
+  auto plan = LoadPlan(plan_path, ctx);
+  if (!db.ok() || !plan.ok()) {
+    std::fprintf(stderr, "setup: %s\n", (!db.ok() ? db.error() : plan.error()).message.c_str());
+    return 1;
+  }
+  const auto points = ExpandPoints(*plan, ctx);
+  auto sp = (*db)->EnsureSpecimen(plan->specimen);
+  auto cfg = (*db)->StoreConfig("bench");
+  auto run = (*db)->CreateRun(*sp, *cfg, plan->text, points);
+  Engine engine(**stages, **camera, &meter, **db, EngineOptions{.linear_limit_adu = 40000});
+  std::atomic<bool> stop{false};
+  const double t0 = clock.Now();
+  const Status st = engine.Run(*run, *plan, stop);
+  const double elapsed = clock.Now() - t0;
+  if (!st.ok()) {
+    std::fprintf(stderr, "run failed: %s\n", st.error().message.c_str());
+    return 1;
+  }
+  const EngineStats& e = engine.stats();
+  // Motion bound along the order: EstimateSeconds with zero exposure counts only the profiles.
+  const double motion = EstimateSeconds(*plan, points, {s, a}, 0.0);
+  const double bound = e.exposure_s + motion;
+  const int all_frames = e.frames + e.ranging_frames + e.dark_frames;
+  const double readout = all_frames * (*cam)->sensor().ReadoutSeconds(512 * 512);
+  std::printf("# Sweep efficiency on the simulated instrument (acquisition_sweep %d %g)\n\n",
+              per_incidence, speed);
+  std::printf("| quantity | value |\n|---|---|\n");
+  std::printf("| points | %d |\n", e.points);
+  std::printf("| frames: averaged / ranging / dark | %d / %d / %d |\n", e.frames, e.ranging_frames,
+              e.dark_frames);
+  std::printf("| exposure, all frames (sim s) | %.1f |\n", e.exposure_s);
+  std::printf("| of which darks (sim s) | %.1f |\n", e.dark_exposure_s);
+  std::printf("| motion bound along the order (sim s) | %.1f |\n", motion);
+  std::printf("| readout, all frames (sim s) | %.1f |\n", readout);
+  std::printf("| run time (sim s) | %.1f |\n", elapsed);
+  std::printf("| **efficiency: (exposure + motion) / run time** | **%.3f** |\n", bound / elapsed);
+  std::printf("| efficiency counting readout as physical | %.3f |\n", (bound + readout) / elapsed);
+  std::printf("| useful share: averaged frames' exposure / run time | %.3f |\n",
+              (e.exposure_s - e.dark_exposure_s) / elapsed);
+  for (const char* ext : {"", "-wal", "-shm", ".plan.toml"}) std::filesystem::remove(db_path + ext);
+  return 0;
+}

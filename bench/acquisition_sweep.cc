@@ -5,7 +5,11 @@
 // and what readout adds, so the gap can be attributed.
 //
 //   build-release/bench/acquisition_sweep [points_per_incidence=17] [clock_speed=100]
+//   build-release/bench/acquisition_sweep soak [points=10000] [clock_speed=100]
 //   ./scripts/bench.sh sweep
+//
+// The soak mode (issue #6: memory stays flat) measures bright geometries only and reports the
+// process's resident memory after 100 points and at the end; the goal is within 10 %.
 //
 // Holds the GigE Vision port 3956 while it runs (one simulated camera per machine).
 #include <cmath>
@@ -13,6 +17,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <string>
 
 #include "acquisition/engine.h"
 #include "drivers/camera/aravis_camera.h"
@@ -26,12 +31,33 @@
 using namespace gonio;
 using namespace gonio::acquisition;
 
+namespace {
+// Resident memory of this process, kB (Linux /proc).
+long RssKb() {
+  std::ifstream in("/proc/self/status");
+  std::string key;
+  long value = -1;
+  while (in >> key) {
+    if (key == "VmRSS:") {
+      in >> value;
+      break;
+    }
+    in.ignore(1 << 20, '\n');
+  }
+  return value;
+}
+}  // namespace
+
 int main(int argc, char** argv) {
-  const int per_incidence = argc > 1 ? std::atoi(argv[1]) : 17;
-  const double speed = argc > 2 ? std::atof(argv[2]) : 100;
-  if (per_incidence < 2 || !(speed > 0)) {
+  const bool soak = argc > 1 && std::string(argv[1]) == "soak";
+  const int first_arg = soak ? 2 : 1;
+  const int count = argc > first_arg ? std::atoi(argv[first_arg]) : (soak ? 10000 : 17);
+  const double speed = argc > first_arg + 1 ? std::atof(argv[first_arg + 1]) : 100;
+  const int per_incidence = soak ? 401 : count;
+  if (count < 2 || !(speed > 0)) {
     std::fprintf(stderr,
-                 "usage: acquisition_sweep [points_per_incidence >= 2] [clock_speed > 0]\n");
+                 "usage: acquisition_sweep [points_per_incidence >= 2] [clock_speed > 0]\n"
+                 "       acquisition_sweep soak [points >= 200] [clock_speed > 0]\n");
     return 2;
   }
   sim::ScaledClock clock(speed);
@@ -71,12 +97,20 @@ int main(int argc, char** argv) {
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
   auto db = Storage::Open(db_path);
   const std::string plan_path = db_path + ".plan.toml";
-  const double step = 40.0 / (per_incidence - 1);
-  std::ofstream(plan_path) << "sample = \"G1\"\n[geometry]\nincidence_deg = [0, 30, 60, 80]\n"
-                           << "view_about = \"refracted\"\nview_from_deg = -20\nview_to_deg = 20\n"
-                           << "view_step_deg = " << step << "\n[exposure]\nframes = 4\n"
-                           << "initial_s = 0.05\nmax_s = 20\n"
-                           << "[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n";
+  std::ofstream plan_file(plan_path);
+  plan_file << "sample = \"G1\"\n[geometry]\nview_about = \"refracted\"\n";
+  if (soak) {  // bright points only: 401 views within +-2 deg of each lobe's centre
+    plan_file << "incidence_deg = [";
+    const int incidences = (count + per_incidence - 1) / per_incidence;
+    for (int k = 0; k < incidences; ++k) plan_file << (k ? ", " : "") << (k * 60.0 / incidences);
+    plan_file << "]\nview_from_deg = -2\nview_to_deg = 2\nview_step_deg = 0.01\n";
+  } else {
+    plan_file << "incidence_deg = [0, 30, 60, 80]\nview_from_deg = -20\nview_to_deg = 20\n"
+              << "view_step_deg = " << 40.0 / (per_incidence - 1) << "\n";
+  }
+  plan_file << "[exposure]\nframes = 4\ninitial_s = 0.05\nmax_s = 20\n"
+            << "[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n";
+  plan_file.close();
   PlanContext ctx;
   ctx.specimens = {{"G1", "glass", 6, 1.51}};
   ctx.axes = {s, a};
@@ -85,14 +119,21 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "setup: %s\n", (!db.ok() ? db.error() : plan.error()).message.c_str());
     return 1;
   }
-  const auto points = ExpandPoints(*plan, ctx);
+  auto points = ExpandPoints(*plan, ctx);
+  if (soak && static_cast<int>(points.size()) > count) points.resize(count);
   auto sp = (*db)->EnsureSpecimen(plan->specimen);
   auto cfg = (*db)->StoreConfig("bench");
   auto run = (*db)->CreateRun(*sp, *cfg, plan->text, points);
   Engine engine(**stages, **camera, &meter, **db, EngineOptions{.linear_limit_adu = 40000});
   std::atomic<bool> stop{false};
   const double t0 = clock.Now();
-  const Status st = engine.Run(*run, *plan, stop);
+  long rss_100 = 0, rss_end = 0;
+  const Status st = engine.Run(*run, *plan, stop, [&](const Progress& p) {
+    if (p.done == 100) rss_100 = RssKb();
+    rss_end = RssKb();
+    if (soak && p.done % 1000 == 0)
+      std::fprintf(stderr, "%d/%d points, RSS %ld kB\n", p.done, p.total, rss_end);
+  });
   const double elapsed = clock.Now() - t0;
   if (!st.ok()) {
     std::fprintf(stderr, "run failed: %s\n", st.error().message.c_str());
@@ -119,6 +160,9 @@ int main(int argc, char** argv) {
   std::printf("| efficiency counting readout as physical | %.3f |\n", (bound + readout) / elapsed);
   std::printf("| useful share: averaged frames' exposure / run time | %.3f |\n",
               (e.exposure_s - e.dark_exposure_s) / elapsed);
+  if (e.points >= 100)
+    std::printf("| resident memory after 100 points / at the end (kB) | %ld / %ld (%+.1f %%) |\n",
+                rss_100, rss_end, 100.0 * (rss_end - rss_100) / rss_100);
   for (const char* ext : {"", "-wal", "-shm", ".plan.toml"}) std::filesystem::remove(db_path + ext);
   return 0;
 }

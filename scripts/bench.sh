@@ -41,8 +41,10 @@ for part in "${parts[@]}"; do
     scene)
       build-release/bench/scene_rectangle | tee out/bench/scene_rectangle.md ;;
     sweep)  # holds the GigE Vision port: no other simulated camera may run meanwhile
-      build-release/bench/acquisition_sweep | tee out/bench/acquisition_sweep.md ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, sweep)" >&2
+      build-release/bench/acquisition_sweep 5 10 | tee out/bench/acquisition_sweep.md ;;
+    soak)   # not in the default set: 10,000 points, several minutes
+      build-release/bench/acquisition_sweep soak 10000 100 | tee out/bench/acquisition_soak.md ;;
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, sweep, soak)" >&2
        exit 2 ;;
   esac
 done

@@ -94,6 +94,15 @@ Status AravisCamera::Connect() {
   return Check(e, "camera " + s_.address + ": AcquisitionStart");
 }
 
+Status AravisCamera::Reopen() {
+  Disconnect();
+  if (Status s = Connect(); !s.ok())
+    return Error{ErrorCode::kNotConnected,
+                 "camera " + s_.address + " lost and not reopened: " + s.error().message};
+  ++reopens_;
+  return SetExposure(exposure_s_);
+}
+
 Status AravisCamera::Configure() {
   GError* e = nullptr;
   ArvDevice* dev = arv_camera_get_device(camera_);
@@ -170,12 +179,7 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
       // The camera no longer answers: reopen it once per attempt, then trigger again.
       *last_problem = std::string("TriggerSoftware failed: ") + e->message;
       g_error_free(e);
-      Disconnect();
-      if (Status s = Connect(); !s.ok())
-        return Error{ErrorCode::kNotConnected,
-                     "camera " + s_.address + " lost and not reopened: " + s.error().message};
-      ++reopens_;
-      if (Status s = SetExposure(exposure_s_); !s.ok()) return s.error();
+      if (Status s = Reopen(); !s.ok()) return s.error();
       continue;
     }
     const double wait_s = exposure_s_ + s_.frame_timeout_s;
@@ -226,12 +230,7 @@ Result<Frame> AravisCamera::Snap() {
   const bool silent =
       !f.ok() && f.error().code == ErrorCode::kTimeout && problem.rfind("no frame", 0) == 0;
   if (silent) {
-    Disconnect();
-    if (Status s = Connect(); !s.ok())
-      return Error{ErrorCode::kNotConnected,
-                   "camera " + s_.address + " lost and not reopened: " + s.error().message};
-    ++reopens_;
-    if (Status s = SetExposure(exposure_s_); !s.ok()) return s.error();
+    if (Status s = Reopen(); !s.ok()) return s.error();
     f = SnapOnce(s_.retries + 2, &problem);
   }
   if (f.ok() || f.error().code != ErrorCode::kTimeout) return f;

@@ -34,6 +34,7 @@ class AravisCamera final : public Camera {
   AravisCamera() = default;
   Status Connect();  // camera, settings, stream
   void Disconnect();
+  Status Reopen();  // Disconnect, Connect, restore the exposure; counts reopens_
   Status Configure();
   // One trigger and its retries; kTimeout carries only the last problem (in *last_problem).
   Result<Frame> SnapOnce(int first_attempt, std::string* last_problem);

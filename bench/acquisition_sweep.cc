@@ -86,7 +86,10 @@ int main(int argc, char** argv) {
   drivers::AxisSettings a = s;
   a.name = "arm", a.slave_id = 2, a.degrees_at_zero = 180, a.min_deg = 0, a.max_deg = 360;
   auto stages = drivers::ModbusStageController::Open(link, {s, a});
-  auto camera = drivers::AravisCamera::Open({});
+  // The soak reads a 64 x 64 region around the rectangle: many frames, little transfer.
+  drivers::CameraSettings cs;
+  if (soak) cs.roi_x = 224, cs.roi_y = 224, cs.roi_width = 64, cs.roi_height = 64;
+  auto camera = drivers::AravisCamera::Open(cs);
   if (!stages.ok() || !camera.ok()) {
     std::fprintf(stderr, "cannot open the drivers: %s\n",
                  (!stages.ok() ? stages.error() : camera.error()).message.c_str());
@@ -109,7 +112,8 @@ int main(int argc, char** argv) {
               << "view_step_deg = " << 40.0 / (per_incidence - 1) << "\n";
   }
   plan_file << "[exposure]\nframes = 4\ninitial_s = 0.05\nmax_s = 20\n"
-            << "[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n";
+            << (soak ? "[rectangle]\nx = 29\ny = 22\nwidth = 6\nheight = 19\n"
+                     : "[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n");
   plan_file.close();
   PlanContext ctx;
   ctx.specimens = {{"G1", "glass", 6, 1.51}};
@@ -144,9 +148,11 @@ int main(int argc, char** argv) {
   const double motion = EstimateSeconds(*plan, points, {s, a}, 0.0);
   const double bound = e.exposure_s + motion;
   const int all_frames = e.frames + e.ranging_frames + e.dark_frames;
-  const double readout = all_frames * (*cam)->sensor().ReadoutSeconds(512 * 512);
-  std::printf("# Sweep efficiency on the simulated instrument (acquisition_sweep %d %g)\n\n",
-              per_incidence, speed);
+  const auto size = (*camera)->ImageSize();
+  const int pixels = size.ok() ? size->area() : 512 * 512;
+  const double readout = all_frames * (*cam)->sensor().ReadoutSeconds(pixels);
+  std::printf("# Sweep efficiency on the simulated instrument (acquisition_sweep %s%d %g)\n\n",
+              soak ? "soak " : "", count, speed);
   std::printf("| quantity | value |\n|---|---|\n");
   std::printf("| points | %d |\n", e.points);
   std::printf("| frames: averaged / ranging / dark | %d / %d / %d |\n", e.frames, e.ranging_frames,

@@ -77,6 +77,9 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
       GONIO_TRY(r.String(*k, "temperature_selector", &f.temperature_selector));
       GONIO_TRY(r.String(*k, "temperature_selector_value", &f.temperature_selector_value));
       GONIO_TRY(r.String(*k, "temperature", &f.temperature));
+      if (f.temperature.empty())
+        return r.Fail(k->get("temperature"),
+                      "'temperature' must name the camera's temperature feature");
       GONIO_TRY(r.String(*k, "control_mode", &f.control_mode));
       GONIO_TRY(r.String(*k, "control_on", &f.control_on));
       GONIO_TRY(r.String(*k, "control_off", &f.control_off));

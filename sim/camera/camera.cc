@@ -189,12 +189,19 @@ void SimulatedCamera::Step(double now) {
                                  std::lround(cooler_.Temperature(now) * 1000))));
   SetReg(kCoolingPower, static_cast<std::uint32_t>(std::lround(cooler_.PowerPercent(now) * 1000)));
 
-  if (Reg(kFakeAcquisition) == 0) {  // stopped: forget exposures in progress and stale triggers
-    exposing_ = false;
-    ready_frame_.reset();
-    SetReg(kTriggerSoftware, 0);
+  if (Reg(kFakeAcquisition) == 0) {
+    // Just stopped: forget the exposure in progress and a stale trigger. Only on the transition:
+    // clearing the trigger on every poll while stopped would race with a client that starts
+    // acquisition and triggers between this read and the clear, and lose its trigger.
+    if (acquiring_) {
+      exposing_ = false;
+      ready_frame_.reset();
+      SetReg(kTriggerSoftware, 0);
+    }
+    acquiring_ = false;
     return;
   }
+  acquiring_ = true;
   if (ready_frame_) return;  // waiting for Aravis to send the last one
   if (!exposing_ && (Reg(kTriggerMode) == 0 || Reg(kTriggerSoftware) != 0)) {
     SetReg(kTriggerSoftware, 0);

@@ -121,6 +121,7 @@ class SimulatedCamera {
   std::mt19937_64 rng_;
   std::uint32_t cooler_mode_ = 0;
   bool exposing_ = false;
+  bool acquiring_ = false;  // acquisition was running at the last firmware step
   double exposure_start_ = 0, exposure_s_ = 0;
   StageAngles angles_at_start_;
   std::optional<cv::Mat1w> ready_frame_;

@@ -9,13 +9,6 @@ namespace gonio::config {
 
 namespace {
 
-Status Register(Reader& r, const toml::table& t, const char* key, std::uint16_t* out) {
-  std::int64_t v = *out;
-  if (Status s = r.Integer(t, key, &v, 0, 0xFFFF); !s.ok()) return s;
-  *out = static_cast<std::uint16_t>(v);
-  return OkStatus();
-}
-
 Status Bit(Reader& r, const toml::table& t, const char* key, std::uint32_t* out) {
   std::int64_t bit = -1;
   if (Status s = r.Integer(t, key, &bit, 0, 31); !s.ok()) return s;
@@ -43,18 +36,10 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
     GONIO_TRY(r.String(*t, "address", &s.address));
     GONIO_TRY(r.String(*t, "pixel_format", &s.pixel_format, {"Mono12", "Mono16"}));
     GONIO_TRY(r.Number(*t, "gain_db", &s.gain_db, 0, 48));
-    std::int64_t v = s.black_level;
-    GONIO_TRY(r.Integer(*t, "black_level", &v, -1, 65535));
-    s.black_level = static_cast<int>(v);
-    v = s.binning;
-    GONIO_TRY(r.Integer(*t, "binning", &v, 1, 16));
-    s.binning = static_cast<int>(v);
-    v = s.buffers;
-    GONIO_TRY(r.Integer(*t, "buffers", &v, 2, 64));
-    s.buffers = static_cast<int>(v);
-    v = s.retries;
-    GONIO_TRY(r.Integer(*t, "retries", &v, 0, 10));
-    s.retries = static_cast<int>(v);
+    GONIO_TRY(r.Integer(*t, "black_level", &s.black_level, -1, 65535));
+    GONIO_TRY(r.Integer(*t, "binning", &s.binning, 1, 16));
+    GONIO_TRY(r.Integer(*t, "buffers", &s.buffers, 2, 64));
+    GONIO_TRY(r.Integer(*t, "retries", &s.retries, 0, 10));
     GONIO_TRY(r.Number(*t, "frame_timeout_s", &s.frame_timeout_s, 0.01, 600));
     GONIO_TRY(r.Number(*t, "linear_limit_adu", &s.linear_limit_adu, 100, 65535));
     if (const toml::node* n = t->get("roi")) {
@@ -98,28 +83,18 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
     drivers::ModbusLink& l = c.stage_link;
     GONIO_TRY(r.String(*t, "link", &l.kind, {"rtu", "tcp"}));
     GONIO_TRY(r.String(*t, "host", &l.host));
-    std::int64_t v = l.port;
-    GONIO_TRY(r.Integer(*t, "port", &v, 1, 65535));
-    l.port = static_cast<int>(v);
+    GONIO_TRY(r.Integer(*t, "port", &l.port, 1, 65535));
     GONIO_TRY(r.String(*t, "device", &l.device));
     if (l.kind == "rtu" && l.device.empty())
       return r.Fail(t->get("link"), "an RTU link needs 'device' (the serial port)");
-    v = l.baud;
-    GONIO_TRY(r.Integer(*t, "baud", &v, 1200, 4'000'000));
-    l.baud = static_cast<int>(v);
+    GONIO_TRY(r.Integer(*t, "baud", &l.baud, 1200, 4'000'000));
     std::string parity = "even";
     GONIO_TRY(r.String(*t, "parity", &parity, {"even", "none", "odd"}));
     l.parity = parity == "even" ? 'E' : parity == "odd" ? 'O' : 'N';
-    v = l.data_bits;
-    GONIO_TRY(r.Integer(*t, "data_bits", &v, 7, 8));
-    l.data_bits = static_cast<int>(v);
-    v = l.stop_bits;
-    GONIO_TRY(r.Integer(*t, "stop_bits", &v, 1, 2));
-    l.stop_bits = static_cast<int>(v);
+    GONIO_TRY(r.Integer(*t, "data_bits", &l.data_bits, 7, 8));
+    GONIO_TRY(r.Integer(*t, "stop_bits", &l.stop_bits, 1, 2));
     GONIO_TRY(r.Number(*t, "response_timeout_s", &l.response_timeout_s, 0.01, 30));
-    v = l.retries;
-    GONIO_TRY(r.Integer(*t, "retries", &v, 0, 20));
-    l.retries = static_cast<int>(v);
+    GONIO_TRY(r.Integer(*t, "retries", &l.retries, 0, 20));
     if (const toml::table* g = (*t)["registers"].as_table()) {
       drivers::StageRegisterProfile& p = c.registers;
       GONIO_TRY(r.Keys(*g, "stages.registers",
@@ -127,18 +102,14 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
                         "output_status", "present_alarm", "command_position", "alarm_reset",
                         "in_home_bit", "in_stop_bit", "out_home_end_bit", "out_ready_bit",
                         "out_alarm_bit", "out_move_bit", "out_in_pos_bit"}));
-      GONIO_TRY(Register(r, *g, "direct_data", &p.direct_data));
-      GONIO_TRY(Register(r, *g, "input_command", &p.input_command));
-      GONIO_TRY(Register(r, *g, "output_status", &p.output_status));
-      GONIO_TRY(Register(r, *g, "present_alarm", &p.present_alarm));
-      GONIO_TRY(Register(r, *g, "command_position", &p.command_position));
-      GONIO_TRY(Register(r, *g, "alarm_reset", &p.alarm_reset));
-      std::int64_t x = p.operation_absolute;
-      GONIO_TRY(r.Integer(*g, "operation_absolute", &x, 0, 0xFFFF));
-      p.operation_absolute = static_cast<std::uint32_t>(x);
-      x = p.current;
-      GONIO_TRY(r.Integer(*g, "current", &x, 0, 1000));
-      p.current = static_cast<std::uint32_t>(x);
+      GONIO_TRY(r.Integer(*g, "direct_data", &p.direct_data, 0, 0xFFFF));
+      GONIO_TRY(r.Integer(*g, "input_command", &p.input_command, 0, 0xFFFF));
+      GONIO_TRY(r.Integer(*g, "output_status", &p.output_status, 0, 0xFFFF));
+      GONIO_TRY(r.Integer(*g, "present_alarm", &p.present_alarm, 0, 0xFFFF));
+      GONIO_TRY(r.Integer(*g, "command_position", &p.command_position, 0, 0xFFFF));
+      GONIO_TRY(r.Integer(*g, "alarm_reset", &p.alarm_reset, 0, 0xFFFF));
+      GONIO_TRY(r.Integer(*g, "operation_absolute", &p.operation_absolute, 0, 0xFFFF));
+      GONIO_TRY(r.Integer(*g, "current", &p.current, 0, 1000));
       GONIO_TRY(Bit(r, *g, "in_home_bit", &p.in_home));
       GONIO_TRY(Bit(r, *g, "in_stop_bit", &p.in_stop));
       GONIO_TRY(Bit(r, *g, "out_home_end_bit", &p.out_home_end));
@@ -195,24 +166,14 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
                       "wavelength_nm", "averaging", "timeout_ms"}));
     GONIO_TRY(r.Bool(*t, "enabled", &m.enabled));
     GONIO_TRY(r.String(*t, "transport", &m.transport, {"socket", "usb"}));
-    std::int64_t v = m.usb.vendor_id;
-    GONIO_TRY(r.Integer(*t, "vendor_id", &v, 0, 0xFFFF));
-    m.usb.vendor_id = static_cast<std::uint16_t>(v);
-    v = m.usb.product_id;
-    GONIO_TRY(r.Integer(*t, "product_id", &v, 0, 0xFFFF));
-    m.usb.product_id = static_cast<std::uint16_t>(v);
+    GONIO_TRY(r.Integer(*t, "vendor_id", &m.usb.vendor_id, 0, 0xFFFF));
+    GONIO_TRY(r.Integer(*t, "product_id", &m.usb.product_id, 0, 0xFFFF));
     GONIO_TRY(r.String(*t, "serial", &m.usb.serial));
     GONIO_TRY(r.String(*t, "host", &m.host));
-    v = m.port;
-    GONIO_TRY(r.Integer(*t, "port", &v, 1, 65535));
-    m.port = static_cast<int>(v);
+    GONIO_TRY(r.Integer(*t, "port", &m.port, 1, 65535));
     GONIO_TRY(r.Number(*t, "wavelength_nm", &m.wavelength_nm, 200, 2000));
-    v = m.averaging;
-    GONIO_TRY(r.Integer(*t, "averaging", &v, 1, 100000));
-    m.averaging = static_cast<int>(v);
-    v = m.timeout_ms;
-    GONIO_TRY(r.Integer(*t, "timeout_ms", &v, 10, 60000));
-    m.timeout_ms = static_cast<int>(v);
+    GONIO_TRY(r.Integer(*t, "averaging", &m.averaging, 1, 100000));
+    GONIO_TRY(r.Integer(*t, "timeout_ms", &m.timeout_ms, 10, 60000));
   }
   return c;
 }

@@ -9,6 +9,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <type_traits>
 
 #include "common/result.h"
 
@@ -48,6 +49,16 @@ class Reader {
       return Fail(n, s.str());
     }
     *out = *v;
+    return OkStatus();
+  }
+
+  // The same for a narrower integer field (int, uint16_t, ...): read, range-checked, stored.
+  template <typename Int>
+  requires(!std::is_same_v<Int, std::int64_t>) Status
+      Integer(const toml::table& t, const char* key, Int* out, std::int64_t lo, std::int64_t hi) {
+    std::int64_t v = static_cast<std::int64_t>(*out);
+    if (Status s = Integer(t, key, &v, lo, hi); !s.ok()) return s;
+    *out = static_cast<Int>(v);
     return OkStatus();
   }
 

@@ -71,20 +71,18 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
         }
         GONIO_TRY(r.Number(*a, "steps_per_degree", &ax.steps_per_degree, 1e-3, 1e7));
         GONIO_TRY(r.Number(*a, "degrees_at_zero", &ax.degrees_at_zero, -360, 360));
-        std::int64_t lo = ax.options.min_steps, hi = ax.options.max_steps;
-        GONIO_TRY(r.Integer(*a, "min_steps", &lo, INT32_MIN, INT32_MAX));
-        GONIO_TRY(r.Integer(*a, "max_steps", &hi, INT32_MIN, INT32_MAX));
-        if (lo >= hi) return r.Fail(a, "min_steps must be below max_steps");
-        ax.options.min_steps = static_cast<std::int32_t>(lo);
-        ax.options.max_steps = static_cast<std::int32_t>(hi);
+        GONIO_TRY(r.Integer(*a, "min_steps", &ax.options.min_steps, INT32_MIN, INT32_MAX));
+        GONIO_TRY(r.Integer(*a, "max_steps", &ax.options.max_steps, INT32_MIN, INT32_MAX));
+        if (ax.options.min_steps >= ax.options.max_steps)
+          return r.Fail(a, "min_steps must be below max_steps");
         GONIO_TRY(r.Number(*a, "settle_s", &ax.options.settle_s, 0, 10));
         GONIO_TRY(r.Bool(*a, "limit_switches", &ax.options.limit_switches));
-        std::int64_t ls_lo = ax.options.limit_min_steps, ls_hi = ax.options.limit_max_steps;
-        GONIO_TRY(r.Integer(*a, "limit_min_steps", &ls_lo, INT32_MIN, INT32_MAX));
-        GONIO_TRY(r.Integer(*a, "limit_max_steps", &ls_hi, INT32_MIN, INT32_MAX));
-        if (ls_lo >= ls_hi) return r.Fail(a, "limit_min_steps must be below limit_max_steps");
-        ax.options.limit_min_steps = static_cast<std::int32_t>(ls_lo);
-        ax.options.limit_max_steps = static_cast<std::int32_t>(ls_hi);
+        GONIO_TRY(
+            r.Integer(*a, "limit_min_steps", &ax.options.limit_min_steps, INT32_MIN, INT32_MAX));
+        GONIO_TRY(
+            r.Integer(*a, "limit_max_steps", &ax.options.limit_max_steps, INT32_MIN, INT32_MAX));
+        if (ax.options.limit_min_steps >= ax.options.limit_max_steps)
+          return r.Fail(a, "limit_min_steps must be below limit_max_steps");
         GONIO_TRY(r.Number(*a, "backlash_steps", &ax.options.backlash_steps, 0, 1e6));
         c.axes.push_back(ax);
       }

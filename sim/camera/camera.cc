@@ -190,13 +190,13 @@ void SimulatedCamera::Step(double now) {
   SetReg(kCoolingPower, static_cast<std::uint32_t>(std::lround(cooler_.PowerPercent(now) * 1000)));
 
   if (Reg(kFakeAcquisition) == 0) {
-    // Just stopped: forget the exposure in progress and a stale trigger. Only on the transition:
-    // clearing the trigger on every poll while stopped would race with a client that starts
-    // acquisition and triggers between this read and the clear, and lose its trigger.
+    // Just stopped: forget the exposure in progress. A trigger register left set is not cleared:
+    // the client's GVCP writes do not take our lock, so a clear here can land after the client
+    // has started again and triggered, and eat that trigger (a lost third frame, seen under CI
+    // load). A stale trigger costs at most one early frame at the next start, which clients drain.
     if (acquiring_) {
       exposing_ = false;
       ready_frame_.reset();
-      SetReg(kTriggerSoftware, 0);
     }
     acquiring_ = false;
     return;

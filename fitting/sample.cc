@@ -31,6 +31,12 @@ double ThetaViewDeg(const Sample& s) {
   return s.view.x < 0 ? -t : t;
 }
 
+std::vector<Sample> WithSystematic(std::span<const Sample> samples, double relative) {
+  std::vector<Sample> out(samples.begin(), samples.end());
+  for (Sample& s : out) s.sigma = std::hypot(s.sigma, relative * s.value);
+  return out;
+}
+
 std::string Where(const Sample& s, std::size_t index, const std::string& source) {
   std::ostringstream os;
   if (s.line > 0 && !source.empty())

@@ -3,6 +3,7 @@
 
 #include <span>
 #include <string>
+#include <vector>
 
 #include "common/result.h"
 #include "fitting/optics/vecmath.h"
@@ -40,5 +41,12 @@ Status ValidateSamples(std::span<const Sample> samples, int n_params,
                        const std::string& source = "");
 
 std::string Where(const Sample& s, std::size_t index, const std::string& source = "");
+
+// The samples with a relative systematic uncertainty added in quadrature to each sigma:
+// sigma^2 + (relative * |value|)^2. A bench's stored sigma is statistical only (frames, dark,
+// monitor); what it does not see - the rectangle's spread of view directions, stray light, a
+// tabulated truth's own Monte Carlo error - would otherwise make every fit "poor" by chi-square.
+// relative must be finite and >= 0 (0 returns the samples unchanged).
+std::vector<Sample> WithSystematic(std::span<const Sample> samples, double relative);
 
 }  // namespace gonio::fitting

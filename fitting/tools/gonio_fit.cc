@@ -88,7 +88,7 @@ int main(int argc, char** argv) {
   CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos samples"};
   std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir;
   FitOptions base;
-  double start = 0;
+  double start = 0, systematic = 0;
   bool rational = false;
   app.add_option("samples", csv_path,
                  "CSV with columns theta_l_deg, theta_v_deg, value, sigma [, phi_l_deg, phi_v_deg]")
@@ -101,6 +101,10 @@ int main(int argc, char** argv) {
   app.add_option("--loss", loss_arg, "none, huber or cauchy (robust against stray light)")
       ->capture_default_str();
   app.add_option("--loss-scale", base.loss_scale, "robust loss scale in sigmas")
+      ->capture_default_str();
+  app.add_option("--systematic", systematic,
+                 "relative systematic uncertainty added in quadrature to every sigma (e.g. 0.01 "
+                 "for a bench whose stored sigma is statistical only)")
       ->capture_default_str();
   app.add_option("--start", start,
                  "starting width (alpha, exponent or s) in addition to the automatic starts");
@@ -131,11 +135,15 @@ int main(int argc, char** argv) {
     return fail_input("--loss: '" + loss_arg + "' is not none, huber or cauchy");
   if (start != 0) base.initial_width = start;
   if (auto s = base.Validate(); !s) return fail_input(s.error().message);
+  if (!std::isfinite(systematic) || systematic < 0 || systematic >= 1)
+    return fail_input("--systematic: " + std::to_string(systematic) +
+                      " is not a fraction in [0, 1)");
 
   auto samples = ReadSamplesCsv(csv_path);
   if (!samples) return fail_input(samples.error().message);
   if (auto s = ValidateSamples(*samples, base.NumParams(), csv_path); !s)
     return fail_input(s.error().message);
+  if (systematic > 0) *samples = WithSystematic(*samples, systematic);
 
   const auto groups = GroupByIncidence(*samples);
   const IncidenceGroup* normal = nullptr;

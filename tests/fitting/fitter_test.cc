@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <iostream>
+#include <random>
 
 #include "fitting/synthetic.h"
 
@@ -264,6 +265,31 @@ TEST(Fit, RobustLossResistsStrayLight) {
   EXPECT_GT(a.reduced_chi2, 10.0);  // the stray light shows in the plain fit...
   EXPECT_NEAR(b.width.value, 0.344, 3 * b.width.sigma);  // ...the robust one is unbiased
   EXPECT_LT(b.width.sigma, 0.3 * a.width.sigma);         // and keeps its precision
+}
+
+TEST(Fit, AStatedSystematicTurnsAPoorFitOfGoodDataIntoAnHonestOne) {
+  // A bench whose stored sigma is statistical only (0.1 %) while each sample also carries a 3 %
+  // error it cannot see (rectangle spread, stray light): chi-square calls the right model poor.
+  SyntheticSweep spec = Sweep(Family::kBeckmann, kFigure12[0], 45);
+  spec.peak_electrons = 0;  // noise-free; the systematic below is the only error
+  spec.theta_v_step = 0.5;
+  spec.theta_v_max = 20;  // the lobe: beyond, values fall below 1e-4 of the peak and would only
+                          // dilute chi-square
+  auto data = MakeSyntheticSweep(spec);
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> unit;
+  for (Sample& s : data) {
+    s.value *= 1 + 0.03 * unit(rng);
+    s.sigma = 1e-3 * s.value + 1e-9;
+  }
+  const FitSummary raw = MustFit(data, {});
+  EXPECT_EQ(raw.status, FitStatus::kPoorFit) << raw.reduced_chi2;
+  const FitSummary stated = MustFit(WithSystematic(data, 0.03), {});
+  EXPECT_EQ(stated.status, FitStatus::kConverged) << stated.message;
+  EXPECT_NEAR(stated.reduced_chi2, 1.0, 3 * std::sqrt(2.0 / (stated.n_points - 2)));  // 3 sd
+  EXPECT_NEAR(stated.width.value, 0.344, 3 * stated.width.sigma);
+  // Zero leaves the samples as they were.
+  EXPECT_EQ(WithSystematic(data, 0)[3].sigma, data[3].sigma);
 }
 
 // ---- Empirical D

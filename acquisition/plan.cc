@@ -82,10 +82,9 @@ Result<std::vector<Specimen>> LoadSpecimens(const std::string& path) {
   return out;
 }
 
-Result<Plan> LoadPlan(const std::string& path, const PlanContext& context) {
-  auto parsed = config::ParseTomlFile(path);
-  if (!parsed.ok()) return parsed.error();
-  const toml::table& root = *parsed;
+namespace {
+Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
+                           const PlanContext& context) {
   Reader r(path);
   Plan p;
   p.path = path;
@@ -183,6 +182,20 @@ Result<Plan> LoadPlan(const std::string& path, const PlanContext& context) {
   text << root;
   p.text = text.str();
   return p;
+}
+}  // namespace
+
+Result<Plan> LoadPlan(const std::string& path, const PlanContext& context) {
+  auto parsed = config::ParseTomlFile(path);
+  if (!parsed.ok()) return parsed.error();
+  return PlanFromTable(*parsed, path, context);
+}
+
+Result<Plan> LoadPlanText(std::string_view text, const std::string& name,
+                          const PlanContext& context) {
+  auto parsed = config::ParseTomlText(text, name);
+  if (!parsed.ok()) return parsed.error();
+  return PlanFromTable(*parsed, name, context);
 }
 
 std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& context) {

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "common/bench_angles.h"
@@ -74,6 +75,9 @@ struct PlanContext {
 
 // Parses and validates; errors carry "path:line: what".
 Result<Plan> LoadPlan(const std::string& path, const PlanContext& context);
+// The same from text (an API request, a run's stored plan); errors carry "name:line: what".
+Result<Plan> LoadPlanText(std::string_view text, const std::string& name,
+                          const PlanContext& context);
 
 // The points in measurement order: incidence by incidence (the sample axis moves least), the view
 // sweep alternating direction (a serpentine: the arm never flies back), azimuths outermost.

@@ -234,6 +234,16 @@ Status Storage::AddEvent(std::int64_t run, const std::string& kind, const std::s
   return OkStatus();
 }
 
+Result<std::vector<RunEvent>> Storage::Events(std::int64_t run) {
+  Stmt q(db_, "SELECT kind, detail, at FROM run_events WHERE run_id=? ORDER BY rowid");
+  q.Bind(1, run);
+  std::vector<RunEvent> out;
+  int rc = 0;
+  while ((rc = q.Step()) == SQLITE_ROW) out.push_back({q.T(0), q.T(1), q.T(2)});
+  if (rc != SQLITE_DONE) return q.Fail("reading run events");
+  return out;
+}
+
 Result<RunInfo> Storage::GetRun(std::int64_t run) {
   Stmt q(db_,
          "SELECT r.id, s.name, r.status, r.monitor_reference_w, r.plan, "
@@ -254,6 +264,23 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
   i.points_done = static_cast<int>(q.I(6));
   i.points_skipped = static_cast<int>(q.I(7));
   return i;
+}
+
+Result<std::vector<RunInfo>> Storage::ListRuns() {
+  std::vector<std::int64_t> ids;
+  {
+    Stmt q(db_, "SELECT id FROM runs ORDER BY id");
+    int rc = 0;
+    while ((rc = q.Step()) == SQLITE_ROW) ids.push_back(q.I(0));
+    if (rc != SQLITE_DONE) return q.Fail("listing runs");
+  }
+  std::vector<RunInfo> out;
+  for (std::int64_t id : ids) {
+    auto r = GetRun(id);
+    if (!r.ok()) return r.error();
+    out.push_back(std::move(*r));
+  }
+  return out;
 }
 
 Result<std::optional<std::int64_t>> Storage::UnfinishedRun() {

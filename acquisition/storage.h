@@ -29,6 +29,11 @@ struct RunInfo {
   std::string plan_text;
 };
 
+// What happened to a run besides its points: pauses, suspensions, faults, aborts.
+struct RunEvent {
+  std::string kind, detail, at;  // at: UTC ISO 8601
+};
+
 struct DarkRecord {
   std::int64_t id = 0;
   double exposure_s = 0, temperature_c = 0;
@@ -80,7 +85,10 @@ class Storage {
   Status SetRunStatus(std::int64_t run, const std::string& status);
   Status SetMonitorReference(std::int64_t run, double watts);
   Status AddEvent(std::int64_t run, const std::string& kind, const std::string& detail);
+  Result<std::vector<RunEvent>> Events(std::int64_t run);  // oldest first
   Result<RunInfo> GetRun(std::int64_t run);
+  // Every run, oldest first.
+  Result<std::vector<RunInfo>> ListRuns();
   // The most recent run left running or paused (an interrupted one), if any.
   Result<std::optional<std::int64_t>> UnfinishedRun();
 

@@ -19,8 +19,11 @@ enum class ErrorCode {
   kBusy,
   kAborted,
   kIo,
-  kNumerical,    // a computation could not produce a trustworthy number
-  kDeviceFault,  // the device reports a fault (an alarm, a limit, a failed readback)
+  kNumerical,           // a computation could not produce a trustworthy number
+  kDeviceFault,         // the device reports a fault (an alarm, a limit, a failed readback)
+  kNotFound,            // no such run, job or record
+  kFailedPrecondition,  // not now: the state does not allow it (pause when idle, cancel a running
+                        // job)
 };
 
 inline const char* ToString(ErrorCode c) {
@@ -43,6 +46,10 @@ inline const char* ToString(ErrorCode c) {
       return "numerical error";
     case ErrorCode::kDeviceFault:
       return "device fault";
+    case ErrorCode::kNotFound:
+      return "not found";
+    case ErrorCode::kFailedPrecondition:
+      return "failed precondition";
   }
   return "error";
 }

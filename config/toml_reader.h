@@ -116,6 +116,17 @@ inline Result<toml::table> ParseTomlFile(const std::string& path) {
   }
 }
 
+// Parses text that came from elsewhere (an API request, a stored run): errors read "name:line:".
+inline Result<toml::table> ParseTomlText(std::string_view text, const std::string& name) {
+  try {
+    return toml::parse(text, name);
+  } catch (const toml::parse_error& e) {
+    std::ostringstream s;
+    s << name << ":" << e.source().begin.line << ": " << e.description();
+    return Error{ErrorCode::kInvalidArgument, s.str()};
+  }
+}
+
 }  // namespace gonio::config
 
 // Returns the error of a Status-returning expression from the enclosing function.

@@ -13,6 +13,8 @@ packages=(
   libopencv-dev libceres-dev libsqlite3-dev sqlite3
   # config parsing, JSON, CLI, logging, numerics
   libtomlplusplus-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libboost-dev
+  # the daemon: its local HTTP API (server and gonioctl client) and systemd readiness
+  libcpp-httplib-dev libsystemd-dev
   # chart scripts and benchmark peers run with /usr/bin/python3 (DESIGN.md, Python helpers)
   python3 python3-numpy python3-scipy python3-matplotlib
 )

@@ -106,7 +106,7 @@ int main(int argc, char** argv) {
   PlanContext ctx;
   ctx.specimens = *specimens;
   ctx.axes = cfg->axes;
-  std::string plan_file = plan_path;
+  std::string plan_file = plan_path, stored_plan;
   if (*resume_cmd) {
     if (run_id == 0) {
       auto latest = store.UnfinishedRun();
@@ -123,8 +123,8 @@ int main(int argc, char** argv) {
       std::cout << "run " << run_id << " is already done\n";
       return 0;
     }
-    plan_file = db_path + ".plan-" + std::to_string(run_id) + ".toml";
-    std::ofstream(plan_file) << info->plan_text;
+    plan_file = "run " + std::to_string(run_id) + "'s stored plan";
+    stored_plan = info->plan_text;
   }
   // The devices open before the plan is checked against the camera's image: nothing moves yet.
   std::unique_ptr<drivers::Camera> camera;
@@ -139,7 +139,7 @@ int main(int argc, char** argv) {
     ctx.image_width = size->width;
     ctx.image_height = size->height;
   }
-  auto plan = LoadPlan(plan_file, ctx);
+  auto plan = *resume_cmd ? LoadPlanText(stored_plan, plan_file, ctx) : LoadPlan(plan_file, ctx);
   if (!plan.ok()) return Fail(plan.error());
   const auto points = ExpandPoints(*plan, ctx);
   int skipped = 0;

@@ -12,21 +12,13 @@
 #include <thread>
 
 #include "acquisition/engine.h"
-#include "drivers/camera/aravis_camera.h"
-#include "drivers/monitor/scpi_power_meter.h"
-#include "drivers/stage/modbus_stage.h"
 #include "fitting/fitter.h"
 #include "fitting/samples_csv.h"
-#include "sim/camera/camera.h"
-#include "sim/monitor/power_meter.h"
-#include "sim/stage/modbus_tcp_server.h"
-#include "sim/truth/ground_truth.h"
 #include "sim/truth/monte_carlo.h"
+#include "tests/support/sim_instrument.h"
 
 namespace gonio::acquisition {
 namespace {
-
-constexpr double kGainDb = 12;  // more counts per electron: the stray floor is reached sooner
 
 class EngineOnSim : public ::testing::Test {
  protected:
@@ -38,40 +30,8 @@ class EngineOnSim : public ::testing::Test {
     return sim::MicrofacetTruth("beckmann", 0.344, 1.51);
   }
   void SetUp() override {
-    lamp = std::make_unique<sim::Lamp>(LampOpts());
-    scene = std::make_unique<sim::Scene>(sim::BenchGeometry{}, Truth());
-    auto tcp = sim::StageModbusTcpServer::Start({&sample_axis, &arm_axis}, 0, nullptr, &clock);
-    ASSERT_TRUE(tcp.ok());
-    tcp_server = std::move(*tcp);
-    auto cam = sim::SimulatedCamera::StartGigE(
-        clock, *scene,
-        [this] {
-          return sim::StageAngles{sample_axis.PositionSteps() / 1000,
-                                  180 + arm_axis.PositionSteps() / 1000, 0};
-        },
-        *lamp);
-    ASSERT_TRUE(cam.ok()) << cam.error().message;
-    sim_camera = std::move(*cam);
-    meter_device = std::make_unique<sim::SimulatedPowerMeter>(clock, *lamp);
-    meter = std::make_unique<drivers::ScpiPowerMeter>(*meter_device);
-    ASSERT_TRUE(meter->SetAveraging(100).ok());
-
-    drivers::ModbusLink link;
-    link.port = tcp_server->port();
-    drivers::AxisSettings s{.name = "sample", .slave_id = 1};
-    s.min_deg = -90, s.max_deg = 90, s.speed_deg_s = 30, s.acceleration_deg_s2 = 300;
-    drivers::AxisSettings a = s;
-    a.name = "arm", a.slave_id = 2, a.degrees_at_zero = 180, a.min_deg = 0, a.max_deg = 360;
-    auto st = drivers::ModbusStageController::Open(link, {s, a});
-    ASSERT_TRUE(st.ok()) << st.error().message;
-    stages = std::move(*st);
-    axes = {s, a};
-    drivers::CameraSettings cs;
-    cs.gain_db = kGainDb;
-    auto c = drivers::AravisCamera::Open(cs);
-    ASSERT_TRUE(c.ok()) << c.error().message;
-    camera = std::move(*c);
-
+    inst.Start({.clock_speed = 300, .gain_db = 12, .lamp = LampOpts(), .truth = Truth()});
+    if (HasFatalFailure()) return;
     db_path = (std::filesystem::temp_directory_path() /
                ("gonio_engine_" + std::to_string(::getpid()) + ".sqlite"))
                   .string();
@@ -94,7 +54,7 @@ class EngineOnSim : public ::testing::Test {
                         << exposure << "\n[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n";
     PlanContext ctx;
     ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51}};
-    ctx.axes = axes;
+    ctx.axes = inst.axes;
     ctx.image_width = ctx.image_height = 512;
     auto plan = LoadPlan(path, ctx);
     EXPECT_TRUE(plan.ok()) << plan.error().message;
@@ -112,23 +72,13 @@ class EngineOnSim : public ::testing::Test {
     const sim::ImageRegion region;  // the camera's default: the whole 512 x 512 sensor
     double sum = 0;
     for (int row = 246; row < 246 + 19; ++row)
-      for (int col = 253; col < 253 + 6; ++col) sum += scene->PixelRate(a, region, col, row);
+      for (int col = 253; col < 253 + 6; ++col) sum += inst.scene->PixelRate(a, region, col, row);
     const double e_per_adu =
-        sim_camera->sensor().options().gain_e_per_adu / std::pow(10, kGainDb / 20);
+        inst.sim_camera->sensor().options().gain_e_per_adu / std::pow(10, inst.gain_db / 20);
     return sum / (6 * 19) / e_per_adu;
   }
 
-  sim::ScaledClock clock{300.0};
-  std::unique_ptr<sim::Lamp> lamp;
-  std::unique_ptr<sim::Scene> scene;
-  sim::SimulatedAxis sample_axis{clock, {}, "sample"}, arm_axis{clock, {}, "arm"};
-  std::unique_ptr<sim::StageModbusTcpServer> tcp_server;
-  std::unique_ptr<sim::SimulatedCamera> sim_camera;
-  std::unique_ptr<sim::SimulatedPowerMeter> meter_device;
-  std::unique_ptr<drivers::ScpiPowerMeter> meter;
-  std::unique_ptr<drivers::StageController> stages;
-  std::vector<drivers::AxisSettings> axes;
-  std::unique_ptr<drivers::Camera> camera;
+  gonio::testing::SimInstrument inst;
   std::string db_path;
   std::unique_ptr<Storage> store;
 };
@@ -139,7 +89,8 @@ TEST_F(EngineOnSim, SweepReproducesTheGroundTruthWithHonestUncertaintiesOverFour
       "incidence_deg = [0, 30, 60, 80]\nview_about = \"refracted\"\n"
       "view_from_deg = -20\nview_to_deg = 20\nview_step_deg = 5",
       "frames = 4\ninitial_s = 0.01\nmax_s = 100\nfloor = 0.004");
-  Engine engine(*stages, *camera, meter.get(), *store, EngineOptions{.linear_limit_adu = 65000});
+  Engine engine(*inst.stages, *inst.camera, inst.meter.get(), *store,
+                EngineOptions{.linear_limit_adu = 65000});
   std::atomic<bool> stop{false};
   const Status s = engine.Run(run, plan, stop);
   ASSERT_TRUE(s.ok()) << s.error().message;
@@ -195,18 +146,19 @@ TEST_F(EngineDriftingLamp, MonitorNormalisationRemovesLampDrift) {
   const std::string exposure = "frames = 4\ninitial_s = 0.01";
   auto measure = [&](drivers::SourceMonitor* monitor) {
     auto [plan, run] = NewRun(geometry, exposure);
-    Engine engine(*stages, *camera, monitor, *store, EngineOptions{.linear_limit_adu = 65000});
+    Engine engine(*inst.stages, *inst.camera, monitor, *store,
+                  EngineOptions{.linear_limit_adu = 65000});
     std::atomic<bool> stop{false};
     EXPECT_TRUE(engine.Run(run, plan, stop).ok());
     return run;
   };
   auto wait_sim = [&](double s) {
-    const double t0 = clock.Now();
-    while (clock.Now() - t0 < s) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    const double t0 = inst.clock->Now();
+    while (inst.clock->Now() - t0 < s) std::this_thread::sleep_for(std::chrono::milliseconds(20));
   };
-  const auto first = measure(meter.get());
+  const auto first = measure(inst.meter.get());
   wait_sim(60);
-  const auto second = measure(meter.get());
+  const auto second = measure(inst.meter.get());
   const auto a = *store->Measurements(first);
   const auto b = *store->Measurements(second);
   ASSERT_EQ(a.size(), 3u);
@@ -251,7 +203,8 @@ TEST_P(EngineOnExplicitSurface, FitterRecoversThePredictedAlphaOrReportsAPoorFit
       "incidence_deg = [0]\nview_about = \"refracted\"\n"
       "view_from_deg = -40\nview_to_deg = 40\nview_step_deg = 2",
       "frames = 2\ninitial_s = 0.01\nmax_s = 10\nfloor = 0.004");
-  Engine engine(*stages, *camera, meter.get(), *store, EngineOptions{.linear_limit_adu = 65000});
+  Engine engine(*inst.stages, *inst.camera, inst.meter.get(), *store,
+                EngineOptions{.linear_limit_adu = 65000});
   std::atomic<bool> stop{false};
   const Status st = engine.Run(run, plan, stop);
   ASSERT_TRUE(st.ok()) << st.error().message;

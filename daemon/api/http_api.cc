@@ -1,0 +1,361 @@
+#include "daemon/api/http_api.h"
+
+#include <httplib.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+namespace gonio::daemon {
+namespace {
+
+using nlohmann::json;
+
+constexpr const char* kJson = "application/json";
+
+int HttpStatus(ErrorCode c) {
+  switch (c) {
+    case ErrorCode::kInvalidArgument:
+      return 400;
+    case ErrorCode::kNotFound:
+      return 404;
+    case ErrorCode::kFailedPrecondition:
+      return 409;
+    default:
+      return 500;
+  }
+}
+
+const char* CodeName(int status) {
+  switch (status) {
+    case 400:
+      return "bad_request";
+    case 401:
+      return "unauthorized";
+    case 404:
+      return "not_found";
+    case 409:
+      return "conflict";
+    default:
+      return "internal";
+  }
+}
+
+void Reply(httplib::Response& res, int status, const json& body) {
+  res.status = status;
+  res.set_content(body.dump(), kJson);
+}
+
+void ReplyError(httplib::Response& res, int status, const std::string& message) {
+  Reply(res, status, {{"error", {{"code", CodeName(status)}, {"message", message}}}});
+}
+
+void ReplyError(httplib::Response& res, const Error& e) {
+  ReplyError(res, HttpStatus(e.code), e.message);
+}
+
+json JobJson(const Job& j) {
+  json o{{"id", j.id}, {"name", j.name}, {"state", j.state}, {"message", j.message}};
+  o["run"] = j.run ? json(*j.run) : json(nullptr);
+  return o;
+}
+
+json RunJson(const acquisition::RunInfo& r) {
+  json o{{"id", r.id},
+         {"specimen", r.specimen},
+         {"status", r.status},
+         {"points_total", r.points_total},
+         {"points_done", r.points_done},
+         {"points_skipped", r.points_skipped}};
+  o["monitor_reference_w"] = r.monitor_reference_w ? json(*r.monitor_reference_w) : json(nullptr);
+  return o;
+}
+
+json StatusJson(const StatusReport& s) {
+  json o{{"state", ToString(s.state)}, {"reason", s.reason}, {"queued", s.queued}};
+  o["job"] = s.job ? JobJson(*s.job) : json(nullptr);
+  if (s.progress) {
+    const auto& p = *s.progress;
+    o["progress"] = {{"done", p.done},
+                     {"total", p.total},
+                     {"theta_l_deg", p.point.theta_l_deg},
+                     {"theta_v_deg", p.point.theta_v_deg},
+                     {"phi_deg", p.point.phi_deg},
+                     {"last_value", p.last.value},
+                     {"last_sigma", p.last.sigma},
+                     {"last_exposure_s", p.last.exposure_s},
+                     {"elapsed_s", p.elapsed_s},
+                     {"eta_s", p.eta_s}};
+  } else {
+    o["progress"] = nullptr;
+  }
+  return o;
+}
+
+// The request body as a JSON object, or a 400 already written.
+std::optional<json> Body(const httplib::Request& req, httplib::Response& res) {
+  json j = json::parse(req.body, nullptr, /*allow_exceptions=*/false);
+  if (j.is_discarded() || !j.is_object()) {
+    ReplyError(res, 400, "the body is not a JSON object");
+    return std::nullopt;
+  }
+  return j;
+}
+
+std::int64_t IdOf(const httplib::Request& req) { return std::stoll(req.matches[1].str()); }
+
+}  // namespace
+
+std::string NewToken() {
+  std::random_device rd;  // the kernel's random source
+  std::ostringstream s;
+  for (int i = 0; i < 4; ++i) {
+    char b[9];
+    std::snprintf(b, sizeof b, "%08x", static_cast<unsigned>(rd()));
+    s << b;
+  }
+  return s.str();
+}
+
+Result<std::string> LoadOrCreateToken(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    const std::string token = NewToken();
+    const mode_t old = ::umask(027);  // group may read (the operators), others nothing
+    {
+      std::ofstream out(path);
+      out << token << "\n";
+      if (!out) {
+        ::umask(old);
+        return Error{ErrorCode::kIo, path + ": cannot write the token file"};
+      }
+    }
+    ::umask(old);
+    ::chmod(path.c_str(), 0640);
+    return token;
+  }
+  std::ifstream in(path);
+  std::string token;
+  if (!(in >> token) || token.size() < 16)
+    return InvalidArgument(path + ":1: the token file holds no token of 16 or more characters");
+  struct stat st {};
+  if (::stat(path.c_str(), &st) == 0 && (st.st_mode & S_IROTH) != 0)
+    return InvalidArgument(path + ": the token file is readable by everyone; chmod o-r it");
+  return token;
+}
+
+Result<std::unique_ptr<ApiServer>> ApiServer::Start(Controller& controller, const ApiOptions& o) {
+  if (o.token.empty()) return InvalidArgument("the API needs a token for mutating calls");
+  std::unique_ptr<ApiServer> s(new ApiServer);
+  s->controller_ = &controller;
+  s->o_ = o;
+  auto reader = acquisition::Storage::Open(o.db_path);
+  if (!reader.ok()) return reader.error();
+  s->reader_ = std::move(*reader);
+  s->server_ = std::make_unique<httplib::Server>();
+  s->Routes();
+  if (o.port == 0) {
+    s->port_ = s->server_->bind_to_any_port(o.host);
+    if (s->port_ <= 0) return Error{ErrorCode::kIo, "cannot bind the API to " + o.host};
+  } else {
+    if (!s->server_->bind_to_port(o.host, o.port))
+      return Error{ErrorCode::kIo, "cannot bind the API to " + o.host + ":" +
+                                       std::to_string(o.port) + " (in use, or not an address)"};
+    s->port_ = o.port;
+  }
+  ApiServer* raw = s.get();
+  s->thread_ = std::thread([raw] { raw->server_->listen_after_bind(); });
+  return s;
+}
+
+ApiServer::~ApiServer() { Stop(); }
+
+void ApiServer::Stop() {
+  if (server_) server_->stop();
+  if (thread_.joinable()) thread_.join();
+}
+
+void ApiServer::Routes() {
+  httplib::Server& srv = *server_;
+  Controller& c = *controller_;
+
+  // Authorisation of mutating calls, before any handler runs.
+  srv.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+    if (req.method == "GET" || req.method == "HEAD")
+      return httplib::Server::HandlerResponse::Unhandled;
+    if (req.get_header_value("Authorization") != "Bearer " + o_.token) {
+      ReplyError(res, 401,
+                 req.has_header("Authorization")
+                     ? "the token is wrong (see goniod's --token-file)"
+                     : "this call changes the instrument: send 'Authorization: Bearer <token>'");
+      return httplib::Server::HandlerResponse::Handled;
+    }
+    return httplib::Server::HandlerResponse::Unhandled;
+  });
+  srv.set_error_handler([](const httplib::Request& req, httplib::Response& res) {
+    if (res.status == 404 && res.body.empty())
+      ReplyError(res, 404, "no endpoint " + req.method + " " + req.path + " (see docs/api.md)");
+  });
+  srv.set_exception_handler(
+      [](const httplib::Request&, httplib::Response& res, std::exception_ptr ep) {
+        std::string what = "unknown";
+        try {
+          std::rethrow_exception(ep);
+        } catch (const std::exception& e) {
+          what = e.what();
+        } catch (...) {
+        }
+        ReplyError(res, 500, "internal error: " + what);
+      });
+
+  srv.Get("/api/v1/status", [&c](const httplib::Request&, httplib::Response& res) {
+    Reply(res, 200, StatusJson(c.Report()));
+  });
+
+  srv.Get("/api/v1/jobs", [&c](const httplib::Request&, httplib::Response& res) {
+    json list = json::array();
+    for (const Job& j : c.Jobs()) list.push_back(JobJson(j));
+    Reply(res, 200, {{"jobs", list}});
+  });
+  srv.Get(R"(/api/v1/jobs/(\d+))", [&c](const httplib::Request& req, httplib::Response& res) {
+    auto j = c.GetJob(IdOf(req));
+    if (!j.ok()) return ReplyError(res, j.error());
+    Reply(res, 200, JobJson(*j));
+  });
+  srv.Post("/api/v1/jobs", [&c](const httplib::Request& req, httplib::Response& res) {
+    auto body = Body(req, res);
+    if (!body) return;
+    if (!body->contains("plan") || !(*body)["plan"].is_string())
+      return ReplyError(res, 400, "the body needs \"plan\": the plan's TOML text");
+    const std::string name = body->value("name", std::string("plan"));
+    const int repeat = body->value("repeat", 1);
+    if (repeat < 1 || repeat > 1000) return ReplyError(res, 400, "\"repeat\" must be 1..1000");
+    json jobs = json::array();
+    for (int k = 0; k < repeat; ++k) {
+      auto j = c.Submit(name, (*body)["plan"].get<std::string>());
+      if (!j.ok()) return ReplyError(res, j.error());
+      jobs.push_back(JobJson(*j));
+    }
+    Reply(res, 201, repeat == 1 ? jobs[0] : json{{"jobs", jobs}});
+  });
+  srv.Delete(R"(/api/v1/jobs/(\d+))", [&c](const httplib::Request& req, httplib::Response& res) {
+    auto j = c.Cancel(IdOf(req));
+    if (!j.ok()) return ReplyError(res, j.error());
+    Reply(res, 200, JobJson(*j));
+  });
+  srv.Post(R"(/api/v1/jobs/(\d+)/position)",
+           [&c](const httplib::Request& req, httplib::Response& res) {
+             auto body = Body(req, res);
+             if (!body) return;
+             if (!body->contains("position") || !(*body)["position"].is_number_integer())
+               return ReplyError(res, 400, "the body needs \"position\": an integer (0 = next)");
+             Status s = c.Move(IdOf(req), (*body)["position"].get<int>());
+             if (!s.ok()) return ReplyError(res, s.error());
+             json list = json::array();
+             for (const Job& j : c.Jobs()) list.push_back(JobJson(j));
+             Reply(res, 200, {{"jobs", list}});
+           });
+
+  auto control = [&c](Status (Controller::*op)()) {
+    return [&c, op](const httplib::Request&, httplib::Response& res) {
+      Status s = (c.*op)();
+      if (!s.ok()) return ReplyError(res, s.error());
+      Reply(res, 200, StatusJson(c.Report()));
+    };
+  };
+  srv.Post("/api/v1/pause", control(&Controller::Pause));
+  srv.Post("/api/v1/resume", control(&Controller::Resume));
+  srv.Post("/api/v1/abort", control(&Controller::Abort));
+
+  srv.Get("/api/v1/runs", [this](const httplib::Request&, httplib::Response& res) {
+    std::lock_guard lock(reader_mu_);
+    auto runs = reader_->ListRuns();
+    if (!runs.ok()) return ReplyError(res, runs.error());
+    json list = json::array();
+    for (const auto& r : *runs) list.push_back(RunJson(r));
+    Reply(res, 200, {{"runs", list}});
+  });
+  srv.Get(R"(/api/v1/runs/(\d+))", [this](const httplib::Request& req, httplib::Response& res) {
+    std::lock_guard lock(reader_mu_);
+    auto info = reader_->GetRun(IdOf(req));
+    if (!info.ok()) return ReplyError(res, 404, info.error().message);
+    auto rows = reader_->Measurements(info->id);
+    if (!rows.ok()) return ReplyError(res, rows.error());
+    json o = RunJson(*info);
+    o["plan"] = info->plan_text;
+    json ms = json::array();
+    for (const auto& r : *rows)
+      ms.push_back({{"index", r.point.index},
+                    {"theta_l_deg", r.point.theta_l_deg},
+                    {"theta_v_deg", r.point.theta_v_deg},
+                    {"phi_deg", r.point.phi_deg},
+                    {"value", r.m.value},
+                    {"sigma", r.m.sigma},
+                    {"exposure_s", r.m.exposure_s},
+                    {"frames", r.m.frames},
+                    {"temperature_c", r.m.temperature_c},
+                    {"flags", r.m.flags}});
+    o["measurements"] = ms;
+    auto events = reader_->Events(info->id);
+    if (!events.ok()) return ReplyError(res, events.error());
+    json ev = json::array();
+    for (const auto& e : *events)
+      ev.push_back({{"kind", e.kind}, {"detail", e.detail}, {"at", e.at}});
+    o["events"] = ev;
+    Reply(res, 200, o);
+  });
+  srv.Get(R"(/api/v1/runs/(\d+)/csv)", [this](const httplib::Request& req, httplib::Response& res) {
+    std::lock_guard lock(reader_mu_);
+    const std::int64_t id = IdOf(req);
+    if (auto info = reader_->GetRun(id); !info.ok())
+      return ReplyError(res, 404, info.error().message);
+    const auto tmp =
+        std::filesystem::temp_directory_path() /
+        ("goniod-export-" + std::to_string(::getpid()) + "-" + std::to_string(id) + ".csv");
+    Status s = reader_->ExportCsv(id, tmp.string());
+    if (!s.ok()) return ReplyError(res, s.error());
+    std::ifstream in(tmp);
+    std::stringstream text;
+    text << in.rdbuf();
+    std::filesystem::remove(tmp);
+    res.status = 200;
+    res.set_content(text.str(), "text/csv");
+  });
+
+  // Server-sent events: every event after ?after=N (default: only new ones), as
+  // "id: N\nevent: type\ndata: {json}\n\n", with a comment line every 15 s to keep it open.
+  srv.Get("/api/v1/events", [&c](const httplib::Request& req, httplib::Response& res) {
+    std::int64_t after = c.events().Last();
+    if (req.has_param("after")) {
+      try {
+        after = std::stoll(req.get_param_value("after"));
+      } catch (const std::exception&) {
+        return ReplyError(res, 400, "?after= must be an event number");
+      }
+    }
+    res.set_header("Cache-Control", "no-cache");
+    res.set_chunked_content_provider(
+        "text/event-stream", [&c, after, idle = 0](std::size_t, httplib::DataSink& sink) mutable {
+          if (c.events().closed()) {
+            sink.done();
+            return true;
+          }
+          // Short waits: a daemon stopping is never held up by a quiet stream for long.
+          auto evs = c.events().After(after, std::chrono::milliseconds(500));
+          if (evs.empty()) return ++idle % 30 != 0 || sink.write(": keep-alive\n\n", 14);
+          idle = 0;
+          std::string out;
+          for (const Event& e : evs) {
+            out += "id: " + std::to_string(e.seq) + "\nevent: " + e.type +
+                   "\ndata: " + e.data.dump() + "\n\n";
+            after = e.seq;
+          }
+          return sink.write(out.data(), out.size());
+        });
+  });
+}
+
+}  // namespace gonio::daemon

@@ -1,0 +1,63 @@
+// goniod's local API: HTTP with JSON (cpp-httplib), bound to 127.0.0.1 unless configured
+// otherwise. Reads are open to local clients; every mutating call (POST, DELETE) needs
+// "Authorization: Bearer <token>", the token being the content of a file readable only by the
+// operator's group. The endpoints, bodies and errors are documented in docs/api.md.
+//
+// Errors are JSON {"error": {"code": "...", "message": "..."}} with the status:
+//   400 bad JSON, a missing field, a plan that fails validation (its message has name:line)
+//   401 a mutating call without the right token
+//   404 unknown run, job or path
+//   409 not now (pause when idle, cancel a running job)
+//   500 a storage error
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "acquisition/storage.h"
+#include "common/result.h"
+#include "daemon/service/controller.h"
+
+namespace httplib {
+class Server;
+}
+
+namespace gonio::daemon {
+
+struct ApiOptions {
+  std::string host = "127.0.0.1";
+  int port = 8470;      // 0: any free port (tests)
+  std::string token;    // required for mutating calls; never empty
+  std::string db_path;  // the runs database, opened again read-side for the API's queries
+};
+
+class ApiServer {
+ public:
+  // Binds and starts serving on its own threads; the controller must outlive the server.
+  static Result<std::unique_ptr<ApiServer>> Start(Controller& controller, const ApiOptions& o);
+  ~ApiServer();  // Stop()
+  ApiServer(const ApiServer&) = delete;
+  ApiServer& operator=(const ApiServer&) = delete;
+
+  int port() const { return port_; }
+  void Stop();
+
+ private:
+  ApiServer() = default;
+  void Routes();
+
+  Controller* controller_ = nullptr;
+  ApiOptions o_;
+  std::unique_ptr<acquisition::Storage> reader_;  // the API's own connection (WAL: no blocking)
+  std::mutex reader_mu_;                          // one query at a time on it
+  std::unique_ptr<httplib::Server> server_;
+  std::thread thread_;
+  int port_ = 0;
+};
+
+// A token for a new token file: 32 hex digits from the system's random source.
+std::string NewToken();
+// Reads the token file, creating it (mode 0640, a new token) when it does not exist.
+Result<std::string> LoadOrCreateToken(const std::string& path);
+
+}  // namespace gonio::daemon

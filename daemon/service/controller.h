@@ -1,0 +1,150 @@
+// The daemon's core: a job queue of measurement plans, one worker thread that runs them through
+// the sweep engine on the instrument, run control (pause, resume, abort), suspenders, and an
+// event log. It owns no device: the caller opens them (goniod from the instrument config, tests
+// from the simulator) and keeps them alive; everything here works through the driver interfaces.
+//
+// States (Report().state):
+//   idle       no run in hand; queued jobs start at once
+//   running    the engine is measuring the current job's run
+//   paused     stopped by the operator after a stored point; resume continues, abort ends it
+//   suspended  stopped by a condition (sensor temperature out of band, monitor below its floor,
+//              a device fault that the drivers' retries did not clear); the condition is polled
+//              and the run continues by itself once it clears. Each suspension is a run event.
+//   aborting   abort asked while running: the current point finishes, then the stages stop
+//   fault      a suspension that did not clear within its limit; resume retries, abort ends it
+//
+// Every point is committed by the engine before a pause, suspension, abort or shutdown takes
+// effect, so nothing measured is lost and nothing is measured twice.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "acquisition/engine.h"
+#include "acquisition/plan.h"
+#include "acquisition/storage.h"
+#include "daemon/service/events.h"
+
+namespace gonio::daemon {
+
+enum class State { kIdle, kRunning, kPaused, kSuspended, kAborting, kFault };
+const char* ToString(State s);
+
+struct Job {
+  std::int64_t id = 0;
+  std::string name;       // the submitter's label (a plan file name)
+  std::string plan_text;  // TOML, validated at submit
+  std::string state;      // queued | running | paused | done | aborted | failed | cancelled
+  std::optional<std::int64_t> run;  // once started
+  std::string message;              // why it failed, was aborted or cancelled
+};
+
+// Conditions that suspend a run (Bluesky's suspenders). Unset ones are not checked.
+struct Suspenders {
+  // Sensor temperature must stay within setpoint_c +- band_c.
+  std::optional<double> temperature_setpoint_c;
+  double temperature_band_c = 2.0;
+  // The source monitor's reading must stay above this (W); needs a monitor.
+  std::optional<double> monitor_floor_w;
+  double poll_s = 2.0;             // how often a suspended condition is checked (real seconds)
+  double fault_give_up_s = 600.0;  // a device fault not cleared this long becomes State::kFault
+};
+
+struct ControllerOptions {
+  acquisition::EngineOptions engine;
+  Suspenders suspenders;
+  std::string config_text;  // the instrument config, stored with each run
+};
+
+struct StatusReport {
+  State state = State::kIdle;
+  std::string reason;  // why paused, suspended or in fault
+  std::optional<Job> job;
+  std::optional<acquisition::Progress> progress;  // of the current run, after its first point
+  int queued = 0;
+};
+
+class Controller {
+ public:
+  // The devices and the database outlive the controller; monitor may be null. `context` checks
+  // submitted plans (specimen catalogue, travel limits, image size).
+  Controller(drivers::StageController& stages, drivers::Camera& camera,
+             drivers::SourceMonitor* monitor, acquisition::Storage& db,
+             acquisition::PlanContext context, ControllerOptions options);
+  ~Controller();  // Shutdown()
+  Controller(const Controller&) = delete;
+  Controller& operator=(const Controller&) = delete;
+
+  // Starts the worker. With `resume_interrupted`, a run left running or paused in the database
+  // (the daemon was killed or stopped) is taken up again as a job: resumed at once (true) or
+  // held paused for the operator (false).
+  Status Start(std::optional<bool> resume_interrupted = std::nullopt);
+  // Stops after the current point is stored, leaves the run paused in the database (a restart
+  // resumes it), stops the stages, and joins the worker. Idempotent.
+  void Shutdown();
+
+  // Validates the plan (errors "name:line: what", kInvalidArgument) and queues it.
+  Result<Job> Submit(const std::string& name, const std::string& plan_text);
+  std::vector<Job> Jobs() const;  // current first, then the queue in order, then finished ones
+  Result<Job> GetJob(std::int64_t id) const;  // kNotFound
+  // Queued jobs only (kFailedPrecondition otherwise: a running one is aborted instead).
+  Result<Job> Cancel(std::int64_t id);
+  // Moves a queued job to `position` (0 = next) in the queue.
+  Status Move(std::int64_t id, int position);
+
+  // Run control; kFailedPrecondition when the state does not allow it (the message says why).
+  Status Pause();
+  Status Resume();
+  Status Abort();
+
+  StatusReport Report() const;
+  EventLog& events() { return events_; }
+
+  // Waits until the controller is idle with an empty queue (tests, scripts), up to timeout_s.
+  bool WaitIdle(double timeout_s);
+
+ private:
+  enum class StopReason { kNone, kPause, kAbort, kSuspend, kShutdown };
+  void Worker();
+  void RunCurrent(std::unique_lock<std::mutex>& lock);
+  void OnPoint(const acquisition::Progress& p);       // worker thread, from the engine
+  std::optional<std::string> SuspendCondition();      // worker thread; the reason, when tripped
+  void SetState(State s, const std::string& reason);  // mu_ held
+  void PublishJob(const Job& j);                      // mu_ held
+  void FinishCurrent(const std::string& state, const std::string& message);  // mu_ held
+  void SafeState();  // stages stopped; worker thread
+
+  drivers::StageController& stages_;
+  drivers::Camera& camera_;
+  drivers::SourceMonitor* monitor_;
+  acquisition::Storage& db_;
+  acquisition::PlanContext context_;
+  ControllerOptions o_;
+  EventLog events_;
+
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  State state_ = State::kIdle;
+  std::string reason_;
+  std::deque<Job> queue_;
+  std::optional<Job> current_;
+  std::vector<Job> finished_;
+  std::optional<acquisition::Progress> progress_;
+  std::int64_t next_job_id_ = 1;
+  bool resume_requested_ = false;
+  bool shutdown_ = false;
+  double suspended_since_ = 0;
+  StopReason stop_reason_ = StopReason::kNone;
+  std::atomic<bool> stop_{false};
+  std::thread worker_;
+  bool started_ = false;
+};
+
+}  // namespace gonio::daemon

@@ -1,0 +1,293 @@
+// gonioctl: the operator's command line, talking to goniod's API (docs/api.md).
+//
+//   gonioctl [--url http://127.0.0.1:8470] [--token-file F] [--json] COMMAND
+//     status                     state, current job, progress
+//     submit PLAN [--repeat N] [--wait]   queue a plan file (validated by the daemon)
+//     queue                      jobs: current, queued, finished
+//     cancel JOB | move JOB POS  a queued job
+//     pause | resume | abort     run control
+//     runs | show RUN            stored runs; one run with its measurements
+//     export RUN --out F.csv     the fitter's CSV
+//     wait [--timeout S]         follow progress until the daemon is idle (a progress bar)
+//
+// Exit codes (for scripts): 0 done; 1 the daemon cannot be reached or failed (5xx); 2 the request
+// was refused (4xx: bad input, unknown id, wrong token, not now); 3 wait ended with a run aborted,
+// failed, suspended past its limit (fault), or the timeout.
+#include <httplib.h>
+
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
+
+namespace {
+
+using nlohmann::json;
+
+struct Reply {
+  int status = 0;  // 0: no connection
+  std::string body;
+  json j;
+};
+
+class Api {
+ public:
+  Api(const std::string& url, std::string token) : cli_(url), token_(std::move(token)) {
+    cli_.set_connection_timeout(5);
+    cli_.set_read_timeout(30);
+  }
+  Reply Get(const std::string& path) { return Wrap(cli_.Get(path)); }
+  Reply Post(const std::string& path, const json& body) {
+    return Wrap(cli_.Post(path, Headers(), body.dump(), "application/json"));
+  }
+  Reply Delete(const std::string& path) { return Wrap(cli_.Delete(path, Headers())); }
+
+ private:
+  httplib::Headers Headers() const { return {{"Authorization", "Bearer " + token_}}; }
+  static Reply Wrap(const httplib::Result& r) {
+    Reply out;
+    if (!r) {
+      out.body = httplib::to_string(r.error());
+      return out;
+    }
+    out.status = r->status;
+    out.body = r->body;
+    out.j = json::parse(r->body, nullptr, false);
+    return out;
+  }
+  httplib::Client cli_;
+  std::string token_;
+};
+
+// Prints an error reply and returns the exit code for it.
+int Failed(const Reply& r, const std::string& url) {
+  if (r.status == 0) {
+    std::cerr << "gonioctl: cannot reach goniod at " << url << ": " << r.body << "\n";
+    return 1;
+  }
+  std::string msg = r.body;
+  if (r.j.is_object() && r.j.contains("error")) msg = r.j["error"].value("message", r.body);
+  std::cerr << "gonioctl: " << r.status << ": " << msg << "\n";
+  return r.status >= 500 ? 1 : 2;
+}
+
+std::string Duration(double s) {
+  std::ostringstream o;
+  if (s < 120)
+    o << static_cast<int>(s) << " s";
+  else if (s < 7200)
+    o << std::fixed << std::setprecision(1) << s / 60 << " min";
+  else
+    o << std::fixed << std::setprecision(1) << s / 3600 << " h";
+  return o.str();
+}
+
+void PrintStatus(const json& s) {
+  std::cout << "state: " << s.value("state", "?");
+  if (!s.value("reason", std::string()).empty())
+    std::cout << " (" << s["reason"].get<std::string>() << ")";
+  std::cout << "\n";
+  if (s["job"].is_object()) {
+    const json& j = s["job"];
+    std::cout << "job " << j["id"] << " '" << j.value("name", "") << "': " << j.value("state", "");
+    if (!j["run"].is_null()) std::cout << ", run " << j["run"];
+    std::cout << "\n";
+  }
+  if (s["progress"].is_object()) {
+    const json& p = s["progress"];
+    std::cout << "progress: " << p["done"] << "/" << p["total"] << " points, at theta_l "
+              << p["theta_l_deg"] << " theta_v " << p["theta_v_deg"] << ", last " << p["last_value"]
+              << " +- " << p["last_sigma"] << ", ETA " << Duration(p.value("eta_s", 0.0)) << "\n";
+  }
+  std::cout << "queued: " << s.value("queued", 0) << "\n";
+}
+
+void Bar(int done, int total, double eta_s, const std::string& state) {
+  const int width = 40;
+  const int filled = total > 0 ? done * width / total : 0;
+  std::cerr << "\r[" << std::string(filled, '#') << std::string(width - filled, '.') << "] " << done
+            << "/" << total << "  " << state << "  ETA " << Duration(eta_s) << "   " << std::flush;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"gonioctl: control goniod"};
+  app.require_subcommand(1);
+  std::string url = "http://127.0.0.1:8470", token_file, token;
+  bool as_json = false;
+  app.add_option("--url", url, "goniod's API")->capture_default_str();
+  app.add_option("--token-file", token_file, "the daemon's token (for submit, pause, ...)");
+  app.add_flag("--json", as_json, "print the daemon's JSON replies (for scripts)");
+
+  std::string plan_path, out;
+  int repeat = 1, position = 0;
+  bool wait_after = false;
+  std::int64_t id = 0;
+  double timeout_s = 0;
+  auto* status = app.add_subcommand("status", "state, current job and progress");
+  auto* submit = app.add_subcommand("submit", "queue a plan file");
+  submit->add_option("plan", plan_path)->required()->check(CLI::ExistingFile);
+  submit->add_option("--repeat", repeat, "queue it N times")->capture_default_str();
+  submit->add_flag("--wait", wait_after, "then wait until the daemon is idle");
+  auto* queue = app.add_subcommand("queue", "list jobs");
+  auto* cancel = app.add_subcommand("cancel", "cancel a queued job");
+  cancel->add_option("job", id)->required();
+  auto* move = app.add_subcommand("move", "move a queued job to a position (0 = next)");
+  move->add_option("job", id)->required();
+  move->add_option("position", position)->required();
+  auto* pause = app.add_subcommand("pause", "pause after the current point");
+  auto* resume = app.add_subcommand("resume", "resume a paused, suspended or faulted run");
+  auto* abort = app.add_subcommand("abort", "end the current run (stages stopped)");
+  auto* runs = app.add_subcommand("runs", "stored runs");
+  auto* show = app.add_subcommand("show", "one run and its measurements");
+  show->add_option("run", id)->required();
+  auto* exp = app.add_subcommand("export", "a run as the fitter's CSV");
+  exp->add_option("run", id)->required();
+  exp->add_option("--out", out)->required();
+  auto* wait = app.add_subcommand("wait", "follow progress until the daemon is idle");
+  wait->add_option("--timeout", timeout_s, "give up after S seconds (0: never)");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  if (!token_file.empty()) {
+    std::ifstream in(token_file);
+    if (!(in >> token)) {
+      std::cerr << "gonioctl: " << token_file << ": cannot read a token\n";
+      return 2;
+    }
+  }
+  Api api(url, token);
+  auto print = [&](const Reply& r, const std::function<void(const json&)>& human) {
+    if (r.status < 200 || r.status >= 300) return Failed(r, url);
+    if (as_json)
+      std::cout << r.j.dump(2) << "\n";
+    else
+      human(r.j);
+    return 0;
+  };
+
+  auto wait_idle = [&]() -> int {
+    const auto t0 = std::chrono::steady_clock::now();
+    std::int64_t last_run = 0;
+    while (true) {
+      Reply r = api.Get("/api/v1/status");
+      if (r.status != 200) return Failed(r, url);
+      const std::string state = r.j.value("state", "");
+      if (r.j["job"].is_object() && !r.j["job"]["run"].is_null())
+        last_run = r.j["job"]["run"].get<std::int64_t>();
+      if (r.j["progress"].is_object()) {
+        const json& p = r.j["progress"];
+        if (!as_json) Bar(p.value("done", 0), p.value("total", 0), p.value("eta_s", 0.0), state);
+      }
+      if (state == "idle" && r.j.value("queued", 0) == 0) {
+        if (!as_json) std::cerr << "\n";
+        // The last job's outcome decides the exit code.
+        Reply jobs = api.Get("/api/v1/jobs");
+        std::string outcome = "done";
+        if (jobs.status == 200)
+          for (const json& j : jobs.j["jobs"])
+            if (!j["run"].is_null() && j["run"].get<std::int64_t>() == last_run)
+              outcome = j.value("state", "done");
+        if (as_json)
+          std::cout << json{{"state", state}, {"run", last_run}, {"outcome", outcome}}.dump()
+                    << "\n";
+        else
+          std::cout << "idle; last run " << last_run << ": " << outcome << "\n";
+        return outcome == "done" ? 0 : 3;
+      }
+      if (state == "fault") {
+        std::cerr << "\ngonioctl: fault: " << r.j.value("reason", "") << "\n";
+        return 3;
+      }
+      if (timeout_s > 0 &&
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() >
+              timeout_s) {
+        std::cerr << "\ngonioctl: still " << state << " after " << timeout_s << " s\n";
+        return 3;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    }
+  };
+
+  if (*status) return print(api.Get("/api/v1/status"), PrintStatus);
+  if (*submit) {
+    std::ifstream in(plan_path);
+    std::stringstream text;
+    text << in.rdbuf();
+    const int rc = print(
+        api.Post("/api/v1/jobs", {{"name", plan_path}, {"plan", text.str()}, {"repeat", repeat}}),
+        [](const json& j) {
+          auto one = [](const json& x) {
+            std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
+          };
+          if (j.contains("jobs"))
+            for (const json& x : j["jobs"]) one(x);
+          else
+            one(j);
+        });
+    if (rc != 0 || !wait_after) return rc;
+    return wait_idle();
+  }
+  if (*queue)
+    return print(api.Get("/api/v1/jobs"), [](const json& j) {
+      for (const json& x : j["jobs"]) {
+        std::cout << std::setw(5) << x["id"].get<std::int64_t>() << "  " << std::setw(10)
+                  << x.value("state", "") << "  run " << std::setw(5)
+                  << (x["run"].is_null() ? std::string("-") : x["run"].dump()) << "  "
+                  << x.value("name", "");
+        if (!x.value("message", std::string()).empty())
+          std::cout << "  (" << x["message"].get<std::string>() << ")";
+        std::cout << "\n";
+      }
+    });
+  if (*cancel)
+    return print(api.Delete("/api/v1/jobs/" + std::to_string(id)),
+                 [](const json& j) { std::cout << "job " << j["id"] << " cancelled\n"; });
+  if (*move)
+    return print(
+        api.Post("/api/v1/jobs/" + std::to_string(id) + "/position", {{"position", position}}),
+        [&](const json&) { std::cout << "job " << id << " moved\n"; });
+  if (*pause) return print(api.Post("/api/v1/pause", json::object()), PrintStatus);
+  if (*resume) return print(api.Post("/api/v1/resume", json::object()), PrintStatus);
+  if (*abort) return print(api.Post("/api/v1/abort", json::object()), PrintStatus);
+  if (*runs)
+    return print(api.Get("/api/v1/runs"), [](const json& j) {
+      for (const json& r : j["runs"])
+        std::cout << std::setw(5) << r["id"].get<std::int64_t>() << "  " << std::setw(8)
+                  << r.value("status", "") << "  " << r["points_done"] << "/"
+                  << r["points_total"].get<int>() - r["points_skipped"].get<int>() << " points  "
+                  << r.value("specimen", "") << "\n";
+    });
+  if (*show)
+    return print(api.Get("/api/v1/runs/" + std::to_string(id)), [](const json& r) {
+      std::cout << "run " << r["id"] << " (" << r.value("specimen", "")
+                << "): " << r.value("status", "") << ", " << r["points_done"] << " points\n";
+      std::cout << "theta_l  theta_v   value          sigma       exposure_s\n";
+      for (const json& m : r["measurements"])
+        std::cout << std::setw(7) << m["theta_l_deg"].get<double>() << "  " << std::setw(7)
+                  << m["theta_v_deg"].get<double>() << "  " << std::setw(13)
+                  << m["value"].get<double>() << "  " << std::setw(10) << m["sigma"].get<double>()
+                  << "  " << m["exposure_s"].get<double>() << "\n";
+    });
+  if (*exp) {
+    Reply r = api.Get("/api/v1/runs/" + std::to_string(id) + "/csv");
+    if (r.status != 200) return Failed(r, url);
+    std::ofstream f(out);
+    f << r.body;
+    if (!f) {
+      std::cerr << "gonioctl: " << out << ": cannot write\n";
+      return 1;
+    }
+    std::cout << "wrote " << out << "\n";
+    return 0;
+  }
+  if (*wait) return wait_idle();
+  return 2;
+}

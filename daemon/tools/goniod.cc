@@ -1,0 +1,182 @@
+// goniod: the daemon that owns the instrument. It opens the devices of the instrument config,
+// serves the local API (docs/api.md) on 127.0.0.1, runs submitted plans one after another through
+// the sweep engine into the SQLite database, and suspends runs on the conditions it is given.
+//
+//   goniod -c config/instrument.toml --db runs.sqlite [--port 8470] [--token-file F]
+//          [--on-start resume|pause|ignore] [--temperature-setpoint C --temperature-band C]
+//          [--monitor-floor W] [--port-file F]
+//
+// SIGTERM or SIGINT: the current point is stored, the run is left paused, the stages stop, and
+// goniod exits 0 within seconds (plus the exposure in progress). On start, a run left unfinished
+// is resumed (--on-start resume, the default), held paused for the operator (pause), or left
+// alone (ignore). Under systemd (Type=notify) it reports READY=1 once the API listens.
+// Exit codes: 0 stopped by a signal; 1 a device, storage or bind error; 2 bad input.
+#include <systemd/sd-daemon.h>
+
+#include <CLI/CLI.hpp>
+#include <csignal>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <thread>
+
+#include "acquisition/plan.h"
+#include "config/instrument_config.h"
+#include "daemon/api/http_api.h"
+#include "daemon/service/controller.h"
+
+namespace {
+
+using namespace gonio;
+
+int Fail(const Error& e) {
+  std::cerr << "goniod: " << e.ToString() << "\n";
+  return e.code == ErrorCode::kInvalidArgument ? 2 : 1;
+}
+
+std::string Timestamp() {
+  const auto now = std::chrono::system_clock::now();
+  const std::time_t t = std::chrono::system_clock::to_time_t(now);
+  char b[32];
+  std::strftime(b, sizeof b, "%F %T", std::localtime(&t));
+  return b;
+}
+
+// Logs by category: the event's type ("state", "job", "progress", "suspend", "log").
+void LogEvents(daemon::EventLog& events) {
+  std::int64_t after = 0;
+  while (!events.closed()) {
+    for (const daemon::Event& e : events.After(after, std::chrono::milliseconds(500))) {
+      after = e.seq;
+      std::cout << Timestamp() << " [" << e.type << "] " << e.data.dump() << std::endl;
+      if (e.type == "state")
+        sd_notifyf(0, "STATUS=%s", e.data.value("state", std::string()).c_str());
+    }
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"goniod: the gonioreflectometer daemon (local HTTP API, job queue, run control)"};
+  std::string config_path, samples_path = "config/samples.toml", db_path, token_file, port_file;
+  std::string host = "127.0.0.1", on_start = "resume";
+  int port = 8470;
+  std::optional<double> setpoint, floor_w;
+  double band = 2.0, poll_s = 2.0, give_up_s = 600;
+  app.add_option("-c,--config", config_path, "instrument config")
+      ->required()
+      ->check(CLI::ExistingFile);
+  app.add_option("--samples", samples_path, "specimen catalogue")->check(CLI::ExistingFile);
+  app.add_option("--db", db_path, "SQLite database (created if missing)")->required();
+  app.add_option("--listen", host, "API address (loopback unless you mean otherwise)")
+      ->capture_default_str();
+  app.add_option("--port", port, "API port (0: any free port)")->capture_default_str();
+  app.add_option("--port-file", port_file, "write the bound port here once listening");
+  app.add_option("--token-file", token_file,
+                 "token for mutating calls (created 0640 if missing; default: <db>.token)");
+  app.add_option("--on-start", on_start, "an interrupted run: resume, pause or ignore")
+      ->check(CLI::IsMember({"resume", "pause", "ignore"}))
+      ->capture_default_str();
+  app.add_option("--temperature-setpoint", setpoint,
+                 "suspend while the sensor is outside setpoint +- band (C)");
+  app.add_option("--temperature-band", band, "C")->capture_default_str();
+  app.add_option("--monitor-floor", floor_w, "suspend while the source monitor reads below (W)");
+  app.add_option("--suspend-poll", poll_s, "seconds between checks of a suspended condition")
+      ->capture_default_str();
+  app.add_option("--fault-after", give_up_s, "seconds a suspension may last before 'fault'")
+      ->capture_default_str();
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  if (token_file.empty()) token_file = db_path + ".token";
+
+  // Signals are taken by sigwait below: blocked here, before any thread starts, in all threads.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  auto cfg = config::LoadInstrumentConfig(config_path);
+  if (!cfg.ok()) return Fail(cfg.error());
+  auto specimens = acquisition::LoadSpecimens(samples_path);
+  if (!specimens.ok()) return Fail(specimens.error());
+  auto token = daemon::LoadOrCreateToken(token_file);
+  if (!token.ok()) return Fail(token.error());
+  auto db = acquisition::Storage::Open(db_path);
+  if (!db.ok()) return Fail(db.error());
+
+  auto camera = config::OpenCamera(*cfg);
+  if (!camera.ok()) return Fail(camera.error());
+  auto size = (*camera)->ImageSize();
+  if (!size.ok()) return Fail(size.error());
+  auto stages = config::OpenStages(*cfg);
+  if (!stages.ok()) return Fail(stages.error());
+  config::OpenedMonitor monitor;
+  if (cfg->monitor.enabled) {
+    auto m = config::OpenMonitor(*cfg);
+    if (!m.ok()) return Fail(m.error());
+    monitor = std::move(*m);
+  }
+  std::cout << Timestamp() << " [device] camera " << (*camera)->Identity() << ", " << size->width
+            << " x " << size->height << "; " << cfg->axes.size() << " axes"
+            << (monitor.monitor ? "; source monitor" : "; no source monitor") << std::endl;
+
+  acquisition::PlanContext ctx;
+  ctx.specimens = *specimens;
+  ctx.axes = cfg->axes;
+  ctx.image_width = size->width;
+  ctx.image_height = size->height;
+  daemon::ControllerOptions co;
+  co.engine.linear_limit_adu = cfg->camera.linear_limit_adu;
+  co.suspenders.temperature_setpoint_c = setpoint;
+  co.suspenders.temperature_band_c = band;
+  co.suspenders.monitor_floor_w = floor_w;
+  co.suspenders.poll_s = poll_s;
+  co.suspenders.fault_give_up_s = give_up_s;
+  {
+    std::ifstream in(config_path);
+    std::stringstream text;
+    text << in.rdbuf();
+    co.config_text = text.str();
+  }
+  daemon::Controller controller(**stages, **camera, monitor.monitor.get(), **db, ctx, co);
+  std::thread logger([&controller] { LogEvents(controller.events()); });
+  std::optional<bool> resume;
+  if (on_start != "ignore") resume = on_start == "resume";
+  if (Status s = controller.Start(resume); !s.ok()) {
+    controller.Shutdown();
+    logger.join();
+    return Fail(s.error());
+  }
+  daemon::ApiOptions ao;
+  ao.host = host;
+  ao.port = port;
+  ao.token = *token;
+  ao.db_path = db_path;
+  auto api = daemon::ApiServer::Start(controller, ao);
+  if (!api.ok()) {
+    controller.Shutdown();
+    logger.join();
+    return Fail(api.error());
+  }
+  if (!port_file.empty()) std::ofstream(port_file) << (*api)->port() << "\n";
+  std::cout << Timestamp() << " [api] listening on http://" << host << ":" << (*api)->port()
+            << " (token in " << token_file << ")" << std::endl;
+  sd_notify(0, "READY=1");
+
+  int sig = 0;
+  sigwait(&signals, &sig);
+  std::cout << Timestamp() << " [state] " << (sig == SIGTERM ? "SIGTERM" : "SIGINT")
+            << ": stopping after the current point" << std::endl;
+  sd_notify(0, "STOPPING=1");
+  controller.Shutdown();  // the run stays paused in the database; the stages stop
+  (*api)->Stop();
+  logger.join();
+  (void)(*stages)->StopAll();
+  std::cout << Timestamp() << " [state] stopped" << std::endl;
+  return 0;
+}

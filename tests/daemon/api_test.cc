@@ -1,0 +1,356 @@
+// goniod's API and run control against the simulated instrument (issue #7): every endpoint and
+// its errors, the job queue, pause/resume/abort at arbitrary moments with nothing lost or measured
+// twice, a suspender tripped by an injected cooler failure, and the live event stream.
+// The controller and API run in-process on the real drivers (tests/support/sim_instrument.h);
+// holds the CTest resource lock "gvcp".
+#include <gtest/gtest.h>
+#include <httplib.h>
+
+#include <chrono>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <set>
+#include <thread>
+
+#include "daemon/api/http_api.h"
+#include "daemon/service/controller.h"
+#include "tests/support/sim_instrument.h"
+
+namespace gonio::daemon {
+namespace {
+
+using nlohmann::json;
+
+// Ten points: two incidences, five views each.
+constexpr const char* kPlan = R"(sample = "ground-glass-G1"
+[geometry]
+incidence_deg = [0, 30]
+view_about = "refracted"
+view_from_deg = -10
+view_to_deg = 10
+view_step_deg = 5
+[exposure]
+frames = 2
+initial_s = 0.05
+[rectangle]
+x = 253
+y = 246
+width = 6
+height = 19
+)";
+
+class DaemonApi : public ::testing::Test {
+ protected:
+  virtual Suspenders Suspend() { return {}; }
+
+  void SetUp() override {
+    inst.Start({});
+    if (HasFatalFailure()) return;
+    db_path = (std::filesystem::temp_directory_path() /
+               ("gonio_api_" + std::to_string(::getpid()) + ".sqlite"))
+                  .string();
+    Remove();
+    auto db = acquisition::Storage::Open(db_path);
+    ASSERT_TRUE(db.ok());
+    store = std::move(*db);
+    acquisition::PlanContext ctx;
+    ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51}};
+    ctx.axes = inst.axes;
+    ctx.image_width = ctx.image_height = 512;
+    ControllerOptions co;
+    co.engine.linear_limit_adu = 40000;
+    co.suspenders = Suspend();
+    co.config_text = "# test";
+    controller =
+        std::make_unique<Controller>(*inst.stages, *inst.camera, inst.meter.get(), *store, ctx, co);
+    ASSERT_TRUE(controller->Start().ok());
+    auto api = ApiServer::Start(
+        *controller, {.host = "127.0.0.1", .port = 0, .token = kToken, .db_path = db_path});
+    ASSERT_TRUE(api.ok()) << api.error().message;
+    server = std::move(*api);
+    client = std::make_unique<httplib::Client>("127.0.0.1", server->port());
+    client->set_read_timeout(30);
+  }
+  void TearDown() override {
+    if (controller) controller->Shutdown();
+    server.reset();
+    controller.reset();
+    store.reset();
+    Remove();
+  }
+  void Remove() {
+    for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
+  }
+
+  httplib::Headers Auth() const { return {{"Authorization", std::string("Bearer ") + kToken}}; }
+  std::pair<int, json> Get(const std::string& path) {
+    auto r = client->Get(path);
+    if (!r) return {0, json()};
+    return {r->status, json::parse(r->body, nullptr, false)};
+  }
+  std::pair<int, json> Post(const std::string& path, const std::string& body,
+                            const httplib::Headers& h) {
+    auto r = client->Post(path, h, body, "application/json");
+    if (!r) return {0, json()};
+    return {r->status, json::parse(r->body, nullptr, false)};
+  }
+  std::pair<int, json> Post(const std::string& path, const json& body) {
+    return Post(path, body.dump(), Auth());
+  }
+  std::int64_t SubmitPlan(const std::string& plan = kPlan) {
+    auto [status, j] = Post("/api/v1/jobs", json{{"name", "quick.toml"}, {"plan", plan}});
+    EXPECT_EQ(status, 201) << j.dump();
+    return j.value("id", std::int64_t{0});
+  }
+  std::string State() { return Get("/api/v1/status").second.value("state", std::string("?")); }
+  int Done() {
+    auto s = Get("/api/v1/status").second;
+    return s["progress"].is_object() ? s["progress"].value("done", 0) : 0;
+  }
+  // Waits (real time) for a predicate, polling every 20 ms.
+  template <typename F>
+  bool WaitFor(F f, double seconds) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (std::chrono::steady_clock::now() < end) {
+      if (f()) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    return f();
+  }
+  // Every planned point measured exactly once.
+  void ExpectComplete(std::int64_t run) {
+    auto info = store->GetRun(run);
+    ASSERT_TRUE(info.ok());
+    auto rows = store->Measurements(run);
+    ASSERT_TRUE(rows.ok());
+    std::set<int> indices;
+    for (const auto& r : *rows) indices.insert(r.point.index);
+    EXPECT_EQ(static_cast<int>(rows->size()), info->points_total - info->points_skipped);
+    EXPECT_EQ(indices.size(), rows->size()) << "a point was measured twice";
+  }
+
+  static constexpr const char* kToken = "0123456789abcdef0123456789abcdef";
+  gonio::testing::SimInstrument inst;
+  std::string db_path;
+  std::unique_ptr<acquisition::Storage> store;
+  std::unique_ptr<Controller> controller;
+  std::unique_ptr<ApiServer> server;
+  std::unique_ptr<httplib::Client> client;
+};
+
+TEST_F(DaemonApi, EveryEndpointAnswersAndErrorsNameTheProblemWithTheRightStatus) {
+  auto [st, status] = Get("/api/v1/status");
+  EXPECT_EQ(st, 200);
+  EXPECT_EQ(status["state"], "idle");
+  EXPECT_EQ(Get("/api/v1/jobs").first, 200);
+  EXPECT_EQ(Get("/api/v1/runs").second["runs"].size(), 0u);
+
+  auto message = [](const json& j) { return j["error"].value("message", std::string()); };
+  // Unknown paths and ids: 404 with a JSON error.
+  auto [s404, nope] = Get("/api/v1/nope");
+  EXPECT_EQ(s404, 404);
+  EXPECT_NE(message(nope).find("no endpoint GET /api/v1/nope"), std::string::npos);
+  EXPECT_EQ(Get("/api/v1/runs/999").first, 404);
+  EXPECT_NE(message(Get("/api/v1/runs/999").second).find("no run 999"), std::string::npos);
+  EXPECT_EQ(Get("/api/v1/runs/999/csv").first, 404);
+  EXPECT_EQ(Get("/api/v1/jobs/999").first, 404);
+  EXPECT_EQ(client->Delete("/api/v1/jobs/999", Auth())->status, 404);
+
+  // Mutations without the token, or with a wrong one: 401, and nothing queued.
+  const json job{{"name", "quick.toml"}, {"plan", kPlan}};
+  auto [s401, unauth] = Post("/api/v1/jobs", job.dump(), {});
+  EXPECT_EQ(s401, 401);
+  EXPECT_NE(message(unauth).find("Authorization: Bearer"), std::string::npos);
+  EXPECT_EQ(Post("/api/v1/jobs", job.dump(), {{"Authorization", "Bearer wrong"}}).first, 401);
+  EXPECT_EQ(Post("/api/v1/pause", "{}", {}).first, 401);
+  EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);
+
+  // Bad bodies: 400 naming the problem.
+  auto [s400, bad] = Post("/api/v1/jobs", std::string("{not json"), Auth());
+  EXPECT_EQ(s400, 400);
+  EXPECT_NE(message(bad).find("not a JSON object"), std::string::npos);
+  EXPECT_NE(message(Post("/api/v1/jobs", json{{"name", "x"}}).second).find("\"plan\""),
+            std::string::npos);
+  EXPECT_EQ(Post("/api/v1/jobs", json{{"plan", kPlan}, {"repeat", 0}}).first, 400);
+  // A plan that fails validation: its name and line.
+  std::string broken = kPlan;
+  broken.replace(broken.find("view_step_deg = 5"), 17, "view_step_deg = -5");
+  auto [sp, invalid] = Post("/api/v1/jobs", json{{"name", "broken.toml"}, {"plan", broken}});
+  EXPECT_EQ(sp, 400);
+  EXPECT_NE(message(invalid).find("broken.toml:7:"), std::string::npos) << message(invalid);
+  auto [ss, syntax] = Post("/api/v1/jobs", json{{"name", "syntax.toml"}, {"plan", "a = = 1"}});
+  EXPECT_EQ(ss, 400);
+  EXPECT_NE(message(syntax).find("syntax.toml:1:"), std::string::npos) << message(syntax);
+  EXPECT_EQ(Post("/api/v1/jobs/1/position", json{{"where", 0}}).first, 400);
+  EXPECT_EQ(Get("/api/v1/events?after=abc").first, 400);
+
+  // Run control when there is nothing to control: 409.
+  for (const char* op : {"/api/v1/pause", "/api/v1/resume", "/api/v1/abort"}) {
+    auto [s409, conflict] = Post(op, json::object());
+    EXPECT_EQ(s409, 409) << op;
+    EXPECT_NE(message(conflict).find("the instrument is idle"), std::string::npos) << op;
+  }
+  EXPECT_EQ(State(), "idle");
+}
+
+TEST_F(DaemonApi, JobsRunInQueueOrderAndQueuedOnesCanBeMovedOrCancelled) {
+  const auto first = SubmitPlan(), second = SubmitPlan(), third = SubmitPlan();
+  ASSERT_TRUE(WaitFor([&] { return State() == "running"; }, 10));
+  // The third goes before the second; the second is cancelled; the running one cannot be.
+  auto [sm, moved] =
+      Post("/api/v1/jobs/" + std::to_string(third) + "/position", json{{"position", 0}});
+  EXPECT_EQ(sm, 200) << moved.dump();
+  EXPECT_EQ(moved["jobs"][0]["id"], first);
+  EXPECT_EQ(moved["jobs"][1]["id"], third);
+  EXPECT_EQ(client->Delete("/api/v1/jobs/" + std::to_string(second), Auth())->status, 200);
+  EXPECT_EQ(client->Delete("/api/v1/jobs/" + std::to_string(second), Auth())->status, 409);
+  EXPECT_EQ(client->Delete("/api/v1/jobs/" + std::to_string(first), Auth())->status, 409);
+  ASSERT_TRUE(controller->WaitIdle(120));
+  const auto jobs = Get("/api/v1/jobs").second["jobs"];
+  std::map<std::int64_t, std::string> state;
+  std::map<std::int64_t, std::int64_t> run;
+  for (const json& j : jobs) {
+    state[j["id"]] = j["state"];
+    if (!j["run"].is_null()) run[j["id"]] = j["run"];
+  }
+  EXPECT_EQ(state[first], "done");
+  EXPECT_EQ(state[second], "cancelled");
+  EXPECT_EQ(state[third], "done");
+  EXPECT_LT(run[first], run[third]);
+  EXPECT_EQ(run.count(second), 0u);
+  ExpectComplete(run[first]);
+  ExpectComplete(run[third]);
+  // The stored run, its measurements and its CSV through the API.
+  auto [sr, shown] = Get("/api/v1/runs/" + std::to_string(run[third]));
+  EXPECT_EQ(sr, 200);
+  EXPECT_EQ(shown["status"], "done");
+  EXPECT_EQ(shown["measurements"].size(), 10u);
+  auto csv = client->Get("/api/v1/runs/" + std::to_string(run[third]) + "/csv");
+  ASSERT_TRUE(csv);
+  EXPECT_EQ(csv->status, 200);
+  EXPECT_NE(csv->body.find("theta_l_deg,theta_v_deg"), std::string::npos);
+  EXPECT_EQ(std::count(csv->body.begin(), csv->body.end(), '\n'), 12);  // comment, header, 10
+}
+
+TEST_F(DaemonApi, PauseResumeAndAbortAtArbitraryMomentsLoseNothing) {
+  std::mt19937 rng(::testing::UnitTest::GetInstance()->random_seed());
+  const auto job = SubmitPlan();
+  // Three pauses at random moments, each held a while: nothing is measured while paused.
+  for (int k = 0; k < 3; ++k) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100 + rng() % 400));
+    auto [sp, paused] = Post("/api/v1/pause", json::object());
+    if (sp == 409) break;  // the run finished first
+    EXPECT_EQ(sp, 200);
+    ASSERT_TRUE(WaitFor([&] { return State() == "paused"; }, 30)) << State();
+    const int held = Done();
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    EXPECT_EQ(Done(), held) << "a point was measured while paused";
+    EXPECT_EQ(Post("/api/v1/pause", json::object()).first, 409);
+    EXPECT_EQ(Post("/api/v1/resume", json::object()).first, 200);
+  }
+  ASSERT_TRUE(controller->WaitIdle(120));
+  auto j = controller->GetJob(job);
+  ASSERT_TRUE(j.ok() && j->run);
+  EXPECT_EQ(j->state, "done");
+  ExpectComplete(*j->run);
+  auto events = store->Events(*j->run);
+  ASSERT_TRUE(events.ok());
+  int pauses = 0;
+  for (const auto& e : *events) pauses += e.kind == "paused";
+  EXPECT_GE(pauses, 1);
+
+  // Abort mid-run: the run ends aborted with the points measured so far, the stages still.
+  const auto second = SubmitPlan();
+  ASSERT_TRUE(WaitFor([&] { return Done() >= 2; }, 30));
+  auto [sa, aborting] = Post("/api/v1/abort", json::object());
+  EXPECT_EQ(sa, 200);
+  ASSERT_TRUE(controller->WaitIdle(60));
+  auto aborted = controller->GetJob(second);
+  ASSERT_TRUE(aborted.ok() && aborted->run);
+  EXPECT_EQ(aborted->state, "aborted");
+  auto info = store->GetRun(*aborted->run);
+  ASSERT_TRUE(info.ok());
+  EXPECT_EQ(info->status, "aborted");
+  EXPECT_GE(info->points_done, 2);
+  EXPECT_LT(info->points_done, 10);
+  EXPECT_EQ(static_cast<int>(store->Measurements(*aborted->run)->size()), info->points_done);
+  for (const char* axis : {"sample", "arm"}) {
+    auto s = inst.stages->ReadStatus(axis);
+    ASSERT_TRUE(s.ok());
+    EXPECT_FALSE(s->moving) << axis;
+  }
+}
+
+TEST_F(DaemonApi, EventStreamCarriesStateJobAndProgress) {
+  std::string stream;
+  std::thread reader([&] {
+    httplib::Client c("127.0.0.1", server->port());
+    c.set_read_timeout(60);
+    c.Get("/api/v1/events?after=0", [&](const char* data, std::size_t n) {
+      stream.append(data, n);
+      // The job's end: its "done" state in a job event.
+      return stream.find("\"state\":\"done\"") == std::string::npos;
+    });
+  });
+  SubmitPlan();
+  ASSERT_TRUE(controller->WaitIdle(120));
+  reader.join();
+  EXPECT_NE(stream.find("event: job\ndata: {"), std::string::npos);
+  EXPECT_NE(stream.find("event: state\ndata: {\"reason\":\"\",\"state\":\"running\"}"),
+            std::string::npos);
+  EXPECT_NE(stream.find("event: progress\ndata: {"), std::string::npos);
+  EXPECT_NE(stream.find("\"done\":10,"), std::string::npos);  // the last point
+  EXPECT_NE(stream.find("id: 1\n"), std::string::npos);
+}
+
+// A suspender on the sensor temperature (setpoint -10 C +- 2 C). The cooler fails during the run:
+// the sensor warms, the run suspends after its current point; the cooler recovers, the sensor
+// comes back into band, and the run continues by itself, with every point measured once.
+class DaemonSuspender : public DaemonApi {
+ protected:
+  Suspenders Suspend() override {
+    Suspenders s;
+    s.temperature_setpoint_c = -10;
+    s.temperature_band_c = 2;
+    s.poll_s = 0.1;
+    return s;
+  }
+};
+
+TEST_F(DaemonSuspender, ACoolerFailureSuspendsTheRunUntilTheSensorIsBackInBand) {
+  drivers::TemperatureWait w;
+  w.setpoint_c = -10;
+  w.hold_s = 0.2;
+  w.timeout_s = 30;
+  ASSERT_TRUE(inst.camera->CoolAndWait(w).ok());
+  const auto job = SubmitPlan();
+  ASSERT_TRUE(WaitFor([&] { return Done() >= 2; }, 30));
+  inst.sim_camera->FailCooler(true);  // the sensor warms toward ambient (tau 60 s simulated)
+  ASSERT_TRUE(WaitFor([&] { return State() == "suspended"; }, 30)) << State();
+  auto [s, status] = Get("/api/v1/status");
+  EXPECT_NE(status.value("reason", std::string()).find("sensor temperature"), std::string::npos)
+      << status.dump();
+  const int held = Done();
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_EQ(Done(), held) << "measured while suspended";
+  inst.sim_camera->FailCooler(false);
+  ASSERT_TRUE(controller->WaitIdle(120)) << State();
+  auto j = controller->GetJob(job);
+  ASSERT_TRUE(j.ok() && j->run);
+  EXPECT_EQ(j->state, "done");
+  ExpectComplete(*j->run);
+  auto events = store->Events(*j->run);
+  ASSERT_TRUE(events.ok());
+  bool suspended = false, cleared = false;
+  for (const auto& e : *events) {
+    suspended = suspended ||
+                (e.kind == "suspend" && e.detail.find("sensor temperature") != std::string::npos);
+    cleared = cleared || e.kind == "suspend_cleared";
+  }
+  EXPECT_TRUE(suspended);
+  EXPECT_TRUE(cleared);
+}
+
+}  // namespace
+}  // namespace gonio::daemon

@@ -1,0 +1,117 @@
+#!/usr/bin/env bash
+# goniod's life cycle against gonio-sim, through gonioctl (issue #7):
+#   - a plan submitted with gonioctl runs; SIGTERM in the middle of its exposures stops goniod
+#     within seconds, exit 0, the run left paused with every stored point complete;
+#   - restarted, goniod finds the interrupted run and resumes it: every point measured once;
+#   - gonioctl's exit codes: 2 for a refused request (no token, bad plan), 1 when no daemon;
+#   - the token file is created readable by owner and group only.
+# Usage: goniod_test.sh GONIO_SIM GONIOD GONIOCTL SOURCE_DIR WORKDIR
+set -euo pipefail
+sim=$1 goniod=$2 ctl=$3 src=$4 work=$5
+mkdir -p "$work"
+rm -rf "${work:?}"/*
+fail() { echo "FAIL: $*" >&2; echo "--- goniod.log" >&2; cat "$work/goniod.log" >&2 || true; exit 1; }
+
+# x5: a point's frames take about a second of real time, so a signal lands mid-exposure.
+"$sim" --speed 5 --port 0 --port-file "$work/port" --monitor-port 0 \
+  --monitor-port-file "$work/mport" > "$work/sim.log" 2>&1 &
+simpid=$!
+daemon=""
+trap 'kill $simpid 2>/dev/null || true; [[ -n "$daemon" ]] && kill -KILL $daemon 2>/dev/null || true' EXIT
+for _ in $(seq 200); do [[ -s "$work/port" ]] && break; sleep 0.05; done
+sed -e "s/^port = 5020/port = $(cat "$work/port")/" -e "s/^port = 5021/port = $(cat "$work/mport")/" \
+  "$src/config/instrument.toml" > "$work/instrument.toml"
+cat > "$work/plan.toml" <<'PLAN'
+sample = "ground-glass-G1"
+[geometry]
+incidence_deg = [0, 30]
+view_about = "refracted"
+view_from_deg = -6
+view_to_deg = 6
+view_step_deg = 3
+[exposure]
+frames = 4
+initial_s = 0.2
+[rectangle]
+x = 253
+y = 246
+width = 6
+height = 19
+PLAN
+db="$work/runs.sqlite"
+start_daemon() {
+  rm -f "$work/apiport"
+  "$goniod" -c "$work/instrument.toml" --samples "$src/config/samples.toml" --db "$db" \
+    --port 0 --port-file "$work/apiport" >> "$work/goniod.log" 2>&1 &
+  daemon=$!
+  for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
+  [[ -s "$work/apiport" ]] || fail "goniod did not start"
+  url="http://127.0.0.1:$(cat "$work/apiport")"
+}
+ctl() { "$ctl" --url "$url" --token-file "$db.token" "$@"; }
+q() { sqlite3 "$db" "$1"; }
+
+start_daemon
+mode=$(stat -c %a "$db.token")
+[[ "$mode" == 640 ]] || fail "token file mode $mode, expected 640"
+
+# Refused requests exit 2 and say why; an unreachable daemon exits 1.
+set +e
+"$ctl" --url "$url" pause > "$work/noauth.out" 2>&1; rc=$?
+set -e
+[[ $rc -eq 2 ]] || fail "pause without a token exited $rc"
+grep -q "401" "$work/noauth.out" || fail "no 401 in: $(cat "$work/noauth.out")"
+sed 's/view_step_deg = 3/view_step_deg = 0/' "$work/plan.toml" > "$work/bad.toml"
+set +e
+ctl submit "$work/bad.toml" > "$work/bad.out" 2>&1; rc=$?
+"$ctl" --url http://127.0.0.1:9 status > /dev/null 2>&1; rc_down=$?
+set -e
+[[ $rc -eq 2 ]] || fail "a bad plan exited $rc"
+grep -q "bad.toml:[0-9]*:" "$work/bad.out" || fail "no file:line in: $(cat "$work/bad.out")"
+[[ $rc_down -eq 1 ]] || fail "an unreachable daemon exited $rc_down"
+
+# A run, stopped by SIGTERM after a few points, in the middle of its frames.
+ctl submit "$work/plan.toml" > /dev/null
+for _ in $(seq 600); do
+  done_now=$(q "select count(*) from measurements" 2>/dev/null || echo 0)
+  [[ "$done_now" -ge 3 ]] && break
+  sleep 0.05
+done
+[[ "$done_now" -ge 3 ]] || fail "no progress"
+sleep 0.4
+t0=$(date +%s%N)
+kill -TERM $daemon
+rc=0
+wait $daemon || rc=$?
+t1=$(date +%s%N)
+daemon=""
+[[ $rc -eq 0 ]] || fail "goniod exited $rc on SIGTERM"
+ms=$(((t1 - t0) / 1000000))
+((ms < 10000)) || fail "goniod took $ms ms to stop"
+grep -q "\[state\] stopped" "$work/goniod.log" || fail "no orderly stop in the log"
+status=$(q "select status from runs where id=1")
+[[ "$status" == paused ]] || fail "run status after SIGTERM: $status"
+stored=$(q "select count(*) from measurements where run_id=1")
+marked=$(q "select count(*) from plan_points where run_id=1 and status='done'")
+total=$(q "select count(*) from plan_points where run_id=1")
+[[ "$stored" == "$marked" ]] || fail "$stored measurements but $marked points marked done"
+[[ "$stored" -lt "$total" ]] || fail "the run finished before the signal; nothing tested"
+q "pragma integrity_check" | grep -qx ok || fail "database integrity"
+echo "SIGTERM after $stored/$total points: stopped in $ms ms, run paused"
+
+# Restarted, goniod resumes the interrupted run by itself.
+start_daemon
+ctl wait --timeout 120 > "$work/wait.out" || fail "wait: $(cat "$work/wait.out")"
+status=$(q "select status from runs where id=1")
+[[ "$status" == done ]] || fail "run status after the restart: $status"
+stored=$(q "select count(*) from measurements where run_id=1")
+distinct=$(q "select count(distinct idx) from measurements where run_id=1")
+[[ "$stored" == "$total" && "$distinct" == "$total" ]] ||
+  fail "$stored measurements ($distinct distinct) of $total points"
+ctl export 1 --out "$work/run1.csv" > /dev/null
+[[ $(grep -vc '^#' "$work/run1.csv") -eq $((total + 1)) ]] || fail "CSV rows"
+ctl --json status | grep -q '"state": "idle"' || fail "not idle after the run"
+kill -TERM $daemon
+wait $daemon
+daemon=""
+echo "restart resumed the run: $total/$total points, each once"

@@ -3,13 +3,13 @@
 #   1. installs what the machine lacks and builds what the demo runs (build/);
 #   2. starts gonio-sim (stages over Modbus TCP, the cooled CCD over GigE Vision, the source
 #      monitor) on 127.0.0.1 with an accelerated clock;
-#   3. measures the simulated ground glass at theta_i = 0, 30, 60, 80 degrees with gonio-acquire
-#      into SQLite (out/demo/runs.sqlite);
+#   3. starts goniod (the daemon, its API on 127.0.0.1) on that instrument and, with gonioctl,
+#      submits the plan measuring the simulated ground glass at theta_i = 0, 30, 60, 80 degrees,
+#      follows it to the end and exports it (SQLite: out/demo/runs.sqlite);
 #   4. fits Beckmann and GGX at normal incidence with gonio-fit, prints the table like Walter
 #      2007's Figure 12 beside the simulator's true values, and writes the plot;
 #   5. stops everything it started.
 # Usage: scripts/demo.sh [--real-time] [--speed N]     (default: x50 simulated time)
-# The daemon (issue #7) will take over step 3 behind its API; the steps stay the same.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -24,13 +24,13 @@ while [[ $# -gt 0 ]]; do
 done
 
 scripts/install-deps.sh
-echo "== building gonio-sim, gonio-acquire, gonio-fit =="
+echo "== building gonio-sim, goniod, gonioctl, gonio-fit =="
 cmake -S . -B build -DGONIO_WERROR=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-cmake --build build -j "$(nproc)" --target gonio-sim gonio-acquire gonio-fit
+cmake --build build -j "$(nproc)" --target gonio-sim goniod gonioctl gonio-fit
 
 work=out/demo
 mkdir -p "$work"
-rm -f "$work"/runs.sqlite* "$work"/*.csv "$work"/port "$work"/mport
+rm -f "$work"/runs.sqlite* "$work"/*.csv "$work"/port "$work"/mport "$work"/apiport
 if pgrep -x gonio-sim >/dev/null; then
   echo "demo.sh: a gonio-sim is already running; the simulated camera's GigE port is taken" >&2
   exit 1
@@ -40,17 +40,34 @@ echo "== starting the simulated instrument (clock x$speed) =="
 build/sim/gonio-sim --config config/sim.toml --speed "$speed" --port 0 --port-file "$work/port" \
   --monitor-port 0 --monitor-port-file "$work/mport" > "$work/gonio-sim.log" 2>&1 &
 sim=$!
-trap 'kill $sim 2>/dev/null || true; wait $sim 2>/dev/null || true' EXIT
+daemon=""
+stop_all() {
+  [[ -n "$daemon" ]] && { kill -TERM "$daemon" 2>/dev/null || true; wait "$daemon" 2>/dev/null || true; }
+  kill "$sim" 2>/dev/null || true
+  wait "$sim" 2>/dev/null || true
+}
+trap stop_all EXIT
 for _ in $(seq 200); do [[ -s "$work/port" ]] && break; sleep 0.05; done
 [[ -s "$work/port" ]] || { echo "gonio-sim did not start:"; cat "$work/gonio-sim.log"; exit 1; }
 head -1 "$work/gonio-sim.log"
 sed -e "s/^port = 5020/port = $(cat "$work/port")/" -e "s/^port = 5021/port = $(cat "$work/mport")/" \
   config/instrument.toml > "$work/instrument.toml"
 
-echo "== measuring (gonio-acquire) =="
-build/daemon/gonio-acquire -c "$work/instrument.toml" --samples config/samples.toml \
-  --db "$work/runs.sqlite" run config/plan_demo.toml
-build/daemon/gonio-acquire --db "$work/runs.sqlite" export 1 --out "$work/run1.csv"
+echo "== starting the daemon (goniod; log in $work/goniod.log) =="
+build/daemon/goniod -c "$work/instrument.toml" --samples config/samples.toml \
+  --db "$work/runs.sqlite" --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
+daemon=$!
+for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
+[[ -s "$work/apiport" ]] || { echo "goniod did not start:"; cat "$work/goniod.log"; exit 1; }
+ctl() {
+  build/daemon/gonioctl --url "http://127.0.0.1:$(cat "$work/apiport")" \
+    --token-file "$work/runs.sqlite.token" "$@"
+}
+
+echo "== measuring (gonioctl submit config/plan_demo.toml --wait) =="
+ctl submit config/plan_demo.toml --wait
+ctl runs
+ctl export 1 --out "$work/run1.csv"
 
 echo "== fitting (gonio-fit): normal incidence, then the other incidences predicted =="
 # Huber: the bench's stray-light floor flattens the far tails; a robust loss keeps it from

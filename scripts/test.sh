@@ -2,7 +2,7 @@
 # The README's test command, and what CI runs (.ci/run).
 #   1. installs what a fresh Debian 12 machine lacks (scripts/install-deps.sh)
 #   2. checks formatting against the committed .clang-format
-#   3. builds with warnings as errors and runs the test suite (build/)
+#   3. builds with warnings as errors and runs the test suite (build/), then the README's demo
 #   4. builds again with AddressSanitizer + UndefinedBehaviorSanitizer and runs the suite (build-asan/)
 # Usage: scripts/test.sh [--no-sanitize]    (--no-sanitize skips step 4, for quick local runs)
 set -euo pipefail
@@ -25,6 +25,18 @@ cmake -S . -B build -DGONIO_WERROR=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/nu
 cmake --build build -j "$jobs"
 echo "== tests =="
 ctest --test-dir build --output-on-failure -j "$jobs" --timeout 900
+
+# The README's first command, as its text says, after the suite (it needs the GigE port alone).
+echo "== the demo: the README's first command =="
+demo_cmd=$(awk '/^Run the instrument/ {f = 1; next} f && /^    / {sub(/^    /, ""); print; exit}' README.md)
+[[ -n "$demo_cmd" ]] || { echo "test.sh: README.md names no demo command" >&2; exit 1; }
+echo "$ $demo_cmd"
+if ! bash -c "$demo_cmd" > build/demo.log 2>&1; then
+  tail -40 build/demo.log
+  echo "test.sh: the demo failed (log: build/demo.log)" >&2
+  exit 1
+fi
+grep -E "^(beckmann|ggx) |^== the simulator|plot_fit: wrote" build/demo.log | head -8
 
 if [[ $sanitize == 1 ]]; then
   echo "== build with ASan + UBSan =="

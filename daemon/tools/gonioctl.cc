@@ -24,6 +24,8 @@
 #include <sstream>
 #include <thread>
 
+#include <unistd.h>
+
 namespace {
 
 using nlohmann::json;
@@ -106,7 +108,17 @@ void PrintStatus(const json& s) {
   std::cout << "queued: " << s.value("queued", 0) << "\n";
 }
 
+// A bar redrawn in place on a terminal; in a log (not a tty), a line each tenth of the run.
 void Bar(int done, int total, double eta_s, const std::string& state) {
+  static int last = -1;
+  if (!::isatty(2)) {
+    const int tenth = total > 0 ? done * 10 / total : 0;
+    if (tenth == last) return;
+    last = tenth;
+    std::cerr << done << "/" << total << " points  " << state << "  ETA " << Duration(eta_s)
+              << "\n";
+    return;
+  }
   const int width = 40;
   const int filled = total > 0 ? done * width / total : 0;
   std::cerr << "\r[" << std::string(filled, '#') << std::string(width - filled, '.') << "] " << done
@@ -187,7 +199,7 @@ int main(int argc, char** argv) {
         if (!as_json) Bar(p.value("done", 0), p.value("total", 0), p.value("eta_s", 0.0), state);
       }
       if (state == "idle" && r.j.value("queued", 0) == 0) {
-        if (!as_json) std::cerr << "\n";
+        if (!as_json && ::isatty(2)) std::cerr << "\n";
         // The last job's outcome decides the exit code.
         Reply jobs = api.Get("/api/v1/jobs");
         std::string outcome = "done";

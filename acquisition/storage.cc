@@ -249,7 +249,7 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
          "SELECT r.id, s.name, r.status, r.monitor_reference_w, r.plan, "
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id), "
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='done'), "
-         "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='skipped') "
+         "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='skipped'), s.eta "
          "FROM runs r JOIN specimens s ON s.id=r.specimen_id WHERE r.id=?");
   q.Bind(1, run);
   if (q.Step() != SQLITE_ROW)
@@ -263,6 +263,7 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
   i.points_total = static_cast<int>(q.I(5));
   i.points_done = static_cast<int>(q.I(6));
   i.points_skipped = static_cast<int>(q.I(7));
+  i.specimen_eta = q.D(8);
   return i;
 }
 
@@ -399,6 +400,27 @@ Result<std::int64_t> Storage::StoreDark(const DarkRecord& d) {
   i.Bind(5, d.pixel_var).Bind(6, d.taken_unix_s);
   if (i.Step() != SQLITE_DONE) return i.Fail("storing a dark frame");
   return sqlite3_last_insert_rowid(db_);
+}
+
+Result<std::int64_t> Storage::StoreFitResult(std::int64_t run, const std::string& model,
+                                             const std::string& parameters,
+                                             const std::string& summary) {
+  Stmt i(db_, "INSERT INTO fit_results(run_id, model, parameters, summary) VALUES(?,?,?,?)");
+  i.Bind(1, run).Bind(2, model).Bind(3, parameters).Bind(4, summary);
+  if (i.Step() != SQLITE_DONE) return i.Fail("storing a fit result of run " + std::to_string(run));
+  return static_cast<std::int64_t>(sqlite3_last_insert_rowid(db_));
+}
+
+Result<std::vector<FitRecord>> Storage::FitResults(std::int64_t run) {
+  Stmt q(db_,
+         "SELECT id, model, parameters, summary, created_at FROM fit_results WHERE run_id=? "
+         "ORDER BY id");
+  q.Bind(1, run);
+  std::vector<FitRecord> out;
+  int rc = 0;
+  while ((rc = q.Step()) == SQLITE_ROW) out.push_back({q.I(0), q.T(1), q.T(2), q.T(3), q.T(4)});
+  if (rc != SQLITE_DONE) return q.Fail("reading the fit results of run " + std::to_string(run));
+  return out;
 }
 
 Status Storage::ExportCsv(std::int64_t run, const std::string& path) {

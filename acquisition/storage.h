@@ -23,6 +23,7 @@ inline constexpr int kSchemaVersion = 1;
 struct RunInfo {
   std::int64_t id = 0;
   std::string specimen;
+  double specimen_eta = 1.5;
   std::string status;  // planned | running | paused | done | aborted | failed
   int points_total = 0, points_done = 0, points_skipped = 0;
   std::optional<double> monitor_reference_w;
@@ -32,6 +33,12 @@ struct RunInfo {
 // What happened to a run besides its points: pauses, suspensions, faults, aborts.
 struct RunEvent {
   std::string kind, detail, at;  // at: UTC ISO 8601
+};
+
+// A fit of a run's samples (the fitter's JSON, as the fitting layer wrote it).
+struct FitRecord {
+  std::int64_t id = 0;
+  std::string model, parameters, summary, created_at;
 };
 
 struct DarkRecord {
@@ -101,6 +108,11 @@ class Storage {
 
   // The run's measurements as the fitter's CSV (fitting/samples_csv.h): theta_l_deg, theta_v_deg,
   // phi_l_deg, phi_v_deg, value, sigma, then the raw statistics.
+  // Fit results stored with their run: parameters and summary as JSON text.
+  Result<std::int64_t> StoreFitResult(std::int64_t run, const std::string& model,
+                                      const std::string& parameters, const std::string& summary);
+  Result<std::vector<FitRecord>> FitResults(std::int64_t run);
+
   Status ExportCsv(std::int64_t run, const std::string& path);
 
  private:

@@ -9,6 +9,10 @@
 #include <random>
 #include <sstream>
 
+#include "daemon/schedule/schedule.h"
+#include "daemon/service/fit_run.h"
+#include "fitting/summary_json.h"
+
 namespace gonio::daemon {
 namespace {
 
@@ -57,12 +61,6 @@ void ReplyError(httplib::Response& res, const Error& e) {
   ReplyError(res, HttpStatus(e.code), e.message);
 }
 
-json JobJson(const Job& j) {
-  json o{{"id", j.id}, {"name", j.name}, {"state", j.state}, {"message", j.message}};
-  o["run"] = j.run ? json(*j.run) : json(nullptr);
-  return o;
-}
-
 json RunJson(const acquisition::RunInfo& r) {
   json o{{"id", r.id},
          {"specimen", r.specimen},
@@ -76,7 +74,7 @@ json RunJson(const acquisition::RunInfo& r) {
 
 json StatusJson(const StatusReport& s) {
   json o{{"state", ToString(s.state)}, {"reason", s.reason}, {"queued", s.queued}};
-  o["job"] = s.job ? JobJson(*s.job) : json(nullptr);
+  o["job"] = s.job ? ToJson(*s.job) : json(nullptr);
   if (s.progress) {
     const auto& p = *s.progress;
     o["progress"] = {{"done", p.done},
@@ -217,13 +215,13 @@ void ApiServer::Routes() {
 
   srv.Get("/api/v1/jobs", [&c](const httplib::Request&, httplib::Response& res) {
     json list = json::array();
-    for (const Job& j : c.Jobs()) list.push_back(JobJson(j));
+    for (const Job& j : c.Jobs()) list.push_back(ToJson(j));
     Reply(res, 200, {{"jobs", list}});
   });
   srv.Get(R"(/api/v1/jobs/(\d+))", [&c](const httplib::Request& req, httplib::Response& res) {
     auto j = c.GetJob(IdOf(req));
     if (!j.ok()) return ReplyError(res, j.error());
-    Reply(res, 200, JobJson(*j));
+    Reply(res, 200, ToJson(*j));
   });
   srv.Post("/api/v1/jobs", [&c](const httplib::Request& req, httplib::Response& res) {
     auto body = Body(req, res);
@@ -237,14 +235,14 @@ void ApiServer::Routes() {
     for (int k = 0; k < repeat; ++k) {
       auto j = c.Submit(name, (*body)["plan"].get<std::string>());
       if (!j.ok()) return ReplyError(res, j.error());
-      jobs.push_back(JobJson(*j));
+      jobs.push_back(ToJson(*j));
     }
     Reply(res, 201, repeat == 1 ? jobs[0] : json{{"jobs", jobs}});
   });
   srv.Delete(R"(/api/v1/jobs/(\d+))", [&c](const httplib::Request& req, httplib::Response& res) {
     auto j = c.Cancel(IdOf(req));
     if (!j.ok()) return ReplyError(res, j.error());
-    Reply(res, 200, JobJson(*j));
+    Reply(res, 200, ToJson(*j));
   });
   srv.Post(R"(/api/v1/jobs/(\d+)/position)",
            [&c](const httplib::Request& req, httplib::Response& res) {
@@ -255,9 +253,50 @@ void ApiServer::Routes() {
              Status s = c.Move(IdOf(req), (*body)["position"].get<int>());
              if (!s.ok()) return ReplyError(res, s.error());
              json list = json::array();
-             for (const Job& j : c.Jobs()) list.push_back(JobJson(j));
+             for (const Job& j : c.Jobs()) list.push_back(ToJson(j));
              Reply(res, 200, {{"jobs", list}});
            });
+
+  // A schedule with its plans' texts: validated against the instrument, then queued (or, with
+  // "dry_run", only described: what would run and how long it would take).
+  srv.Post("/api/v1/schedules", [&c](const httplib::Request& req, httplib::Response& res) {
+    auto body = Body(req, res);
+    if (!body) return;
+    if (!body->contains("schedule") || !(*body)["schedule"].is_string())
+      return ReplyError(res, 400, "the body needs \"schedule\": the schedule's TOML text");
+    std::map<std::string, std::string> plans;
+    if (body->contains("plans")) {
+      if (!(*body)["plans"].is_object())
+        return ReplyError(res, 400, "\"plans\" must map each plan's name to its text");
+      for (const auto& [k, v] : (*body)["plans"].items()) {
+        if (!v.is_string())
+          return ReplyError(res, 400, "plan '" + k + "': the text must be a string");
+        plans[k] = v.get<std::string>();
+      }
+    }
+    const std::string name = body->value("name", std::string("schedule"));
+    auto schedule = ParseSchedule((*body)["schedule"].get<std::string>(), name, plans, c.context());
+    if (!schedule.ok()) return ReplyError(res, schedule.error());
+    if (body->value("dry_run", false)) {
+      json steps = json::array();
+      for (const ScheduleEntry& e : schedule->jobs) {
+        json step{{"plan", e.plan_name}, {"line", e.line},       {"repeat", e.repeat},
+                  {"points", e.points},  {"skipped", e.skipped}, {"estimate_s", e.estimate_s}};
+        step["start_at_unix"] = e.start_at_unix ? json(*e.start_at_unix) : json(nullptr);
+        step["cooler_setpoint_c"] = e.cooler ? json(e.cooler->setpoint_c) : json(nullptr);
+        step["fit"] = e.fit;
+        steps.push_back(step);
+      }
+      return Reply(
+          res, 200,
+          {{"dry_run", true}, {"jobs", steps}, {"estimate_s", schedule->EstimateSeconds()}});
+    }
+    auto jobs = c.Submit(*schedule);
+    if (!jobs.ok()) return ReplyError(res, jobs.error());
+    json list = json::array();
+    for (const Job& j : *jobs) list.push_back(ToJson(j));
+    Reply(res, 201, {{"jobs", list}, {"estimate_s", schedule->EstimateSeconds()}});
+  });
 
   auto control = [&c](Status (Controller::*op)()) {
     return [&c, op](const httplib::Request&, httplib::Response& res) {
@@ -324,6 +363,50 @@ void ApiServer::Routes() {
     res.status = 200;
     res.set_content(text.str(), "text/csv");
   });
+
+  // Fits of a run, stored with it.
+  srv.Get(R"(/api/v1/runs/(\d+)/fits)",
+          [this](const httplib::Request& req, httplib::Response& res) {
+            std::lock_guard lock(reader_mu_);
+            const std::int64_t id = IdOf(req);
+            if (auto info = reader_->GetRun(id); !info.ok())
+              return ReplyError(res, 404, info.error().message);
+            auto fits = reader_->FitResults(id);
+            if (!fits.ok()) return ReplyError(res, fits.error());
+            json list = json::array();
+            for (const auto& f : *fits)
+              list.push_back({{"id", f.id},
+                              {"model", f.model},
+                              {"created_at", f.created_at},
+                              {"summary", json::parse(f.summary, nullptr, false)}});
+            Reply(res, 200, {{"fits", list}});
+          });
+  srv.Post(R"(/api/v1/runs/(\d+)/fit)",
+           [this](const httplib::Request& req, httplib::Response& res) {
+             auto body = Body(req, res);
+             if (!body) return;
+             std::vector<std::string> models = {"beckmann", "ggx"};
+             if (body->contains("models")) {
+               if (!(*body)["models"].is_array())
+                 return ReplyError(res, 400, "\"models\" must be a list of model names");
+               models.clear();
+               for (const json& m : (*body)["models"]) {
+                 if (!m.is_string()) return ReplyError(res, 400, "\"models\" must hold strings");
+                 models.push_back(m.get<std::string>());
+               }
+             }
+             std::lock_guard lock(reader_mu_);
+             auto fits = FitRun(*reader_, IdOf(req), models);
+             if (!fits.ok()) return ReplyError(res, fits.error());
+             json list = json::array();
+             for (const RunFit& f : *fits) {
+               json j = fitting::ToJson(f.summary);
+               j["id"] = f.stored_id;
+               j["samples"] = f.samples;
+               list.push_back(j);
+             }
+             Reply(res, 200, {{"fits", list}});
+           });
 
   // Server-sent events: every event after ?after=N (default: only new ones), as
   // "id: N\nevent: type\ndata: {json}\n\n", with a comment line every 15 s to keep it open.

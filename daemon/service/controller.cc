@@ -2,6 +2,10 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <thread>
+
+#include "daemon/service/fit_run.h"
 
 namespace gonio::daemon {
 namespace {
@@ -12,20 +16,30 @@ double NowS() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
-nlohmann::json JobJson(const Job& j) {
-  nlohmann::json o{{"id", j.id}, {"name", j.name}, {"state", j.state}, {"message", j.message}};
-  o["run"] = j.run ? nlohmann::json(*j.run) : nlohmann::json(nullptr);
-  return o;
+double UnixNow() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 Error NotNow(const std::string& what) { return Error{ErrorCode::kFailedPrecondition, what}; }
 
 }  // namespace
 
+nlohmann::json ToJson(const Job& j) {
+  nlohmann::json o{{"id", j.id}, {"name", j.name}, {"state", j.state}, {"message", j.message}};
+  o["run"] = j.run ? nlohmann::json(*j.run) : nlohmann::json(nullptr);
+  if (j.start_at_unix) o["start_at_unix"] = *j.start_at_unix;
+  if (j.cooler) o["cooler_setpoint_c"] = j.cooler->setpoint_c;
+  if (!j.fit.empty()) o["fit"] = j.fit;
+  if (!j.schedule.empty()) o["schedule"] = j.schedule;
+  return o;
+}
+
 const char* ToString(State s) {
   switch (s) {
     case State::kIdle:
       return "idle";
+    case State::kCooling:
+      return "cooling";
     case State::kRunning:
       return "running";
     case State::kPaused:
@@ -94,19 +108,43 @@ void Controller::Shutdown() {
 }
 
 Result<Job> Controller::Submit(const std::string& name, const std::string& plan_text) {
-  auto plan = acquisition::LoadPlanText(plan_text, name.empty() ? "plan" : name, context_);
+  Job j;
+  j.name = name;
+  j.plan_text = plan_text;
+  return Submit(std::move(j));
+}
+
+Result<Job> Controller::Submit(Job j) {
+  auto plan = acquisition::LoadPlanText(j.plan_text, j.name.empty() ? "plan" : j.name, context_);
   if (!plan.ok()) return plan.error();
   std::lock_guard lock(mu_);
   if (shutdown_) return NotNow("the daemon is shutting down");
-  Job j;
   j.id = next_job_id_++;
-  j.name = name;
-  j.plan_text = plan_text;
   j.state = "queued";
+  j.run.reset();
   queue_.push_back(j);
   PublishJob(j);
   cv_.notify_all();
   return j;
+}
+
+Result<std::vector<Job>> Controller::Submit(const Schedule& schedule) {
+  std::vector<Job> out;
+  for (const ScheduleEntry& e : schedule.jobs) {
+    for (int k = 0; k < e.repeat; ++k) {
+      Job j;
+      j.name = e.plan_name;
+      j.plan_text = e.plan_text;
+      j.start_at_unix = e.start_at_unix;
+      if (k == 0) j.cooler = e.cooler;
+      j.fit = e.fit;
+      j.schedule = schedule.name;
+      auto queued = Submit(std::move(j));
+      if (!queued.ok()) return queued.error();
+      out.push_back(*queued);
+    }
+  }
+  return out;
 }
 
 std::vector<Job> Controller::Jobs() const {
@@ -184,6 +222,7 @@ Status Controller::Abort() {
   std::unique_lock lock(mu_);
   switch (state_) {
     case State::kRunning:
+    case State::kCooling:
       stop_reason_ = StopReason::kAbort;
       stop_ = true;
       SetState(State::kAborting,
@@ -227,7 +266,7 @@ void Controller::SetState(State s, const std::string& reason) {
   cv_.notify_all();
 }
 
-void Controller::PublishJob(const Job& j) { events_.Publish("job", JobJson(j)); }
+void Controller::PublishJob(const Job& j) { events_.Publish("job", ToJson(j)); }
 
 void Controller::FinishCurrent(const std::string& state, const std::string& message) {
   if (!current_) return;
@@ -252,7 +291,10 @@ void Controller::SafeState() {
 void Controller::Worker() {
   std::unique_lock lock(mu_);
   while (!shutdown_) {
-    const bool start_next = state_ == State::kIdle && !current_ && !queue_.empty();
+    const double now = UnixNow();
+    const bool due =
+        !queue_.empty() && (!queue_.front().start_at_unix || *queue_.front().start_at_unix <= now);
+    const bool start_next = state_ == State::kIdle && !current_ && due;
     const bool resume =
         resume_requested_ && current_ &&
         (state_ == State::kPaused || state_ == State::kFault || state_ == State::kSuspended);
@@ -289,6 +331,19 @@ void Controller::Worker() {
       }
       continue;
     }
+    if (state_ == State::kIdle && !current_ && !queue_.empty()) {
+      // The next job has a start time: wait for it (or for a change of the queue).
+      const double wait_s =
+          std::max(0.05, static_cast<double>(*queue_.front().start_at_unix) - now);
+      if (reason_.empty()) {
+        reason_ = "job " + std::to_string(queue_.front().id) + " starts in " +
+                  std::to_string(static_cast<long>(std::ceil(wait_s))) + " s";
+        events_.Publish("state", {{"state", ToString(state_)}, {"reason", reason_}});
+      }
+      cv_.wait_for(lock, std::chrono::duration<double>(std::min(wait_s, 60.0)));
+      reason_.clear();
+      continue;
+    }
     cv_.wait(lock);
   }
   // Shutdown with a run in hand: it stays paused in the database for the next start.
@@ -318,10 +373,28 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     job.run = *run;
   }
   const std::int64_t run = *job.run;
-  job.state = "running";
-  PublishJob(job);
   stop_ = false;
   stop_reason_ = StopReason::kNone;
+  if (job.cooler) {
+    const CoolerWait w = *job.cooler;
+    job.cooler.reset();  // once: a resumed run does not wait again
+    SetState(State::kCooling, "cooling to " + std::to_string(w.setpoint_c) + " C");
+    lock.unlock();
+    const gonio::Status cooled = CoolDown(w);
+    lock.lock();
+    if (!cooled.ok()) {
+      const bool aborted = stop_reason_ == StopReason::kAbort;
+      const bool stopping = stop_reason_ == StopReason::kShutdown;
+      if (stopping) return;  // the run stays planned; the worker exits
+      FinishCurrent(aborted ? "aborted" : "failed",
+                    aborted ? "aborted while cooling" : cooled.error().message);
+      SetState(State::kIdle, "");
+      return;
+    }
+    (void)db_.AddEvent(run, "cooled", "sensor held at " + std::to_string(w.setpoint_c) + " C");
+  }
+  job.state = "running";
+  PublishJob(job);
   SetState(State::kRunning, "");
 
   lock.unlock();
@@ -353,6 +426,12 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   }
   auto info = db_.GetRun(run);
   if (info.ok() && info->status == "done") {
+    if (!current_->fit.empty()) {
+      const Job finished = *current_;
+      lock.unlock();
+      FitAfterRun(finished);
+      lock.lock();
+    }
     FinishCurrent("done", "");
     SetState(State::kIdle, "");
     return;
@@ -404,6 +483,49 @@ void Controller::OnPoint(const Progress& p) {
     reason_ = *why;
     if (current_ && current_->run) (void)db_.AddEvent(*current_->run, "suspend", *why);
     events_.Publish("suspend", {{"reason", *why}});
+  }
+}
+
+Status Controller::CoolDown(const CoolerWait& w) {
+  if (Status s = camera_.SetCooling(true, w.setpoint_c); !s.ok()) return s;
+  const auto start = std::chrono::steady_clock::now();
+  std::optional<std::chrono::steady_clock::time_point> within_since;
+  double t = 0;
+  while (!stop_) {
+    auto temp = camera_.TemperatureC();
+    if (!temp.ok()) return temp.error();
+    t = *temp;
+    const auto now = std::chrono::steady_clock::now();
+    if (std::abs(t - w.setpoint_c) <= w.tolerance_c) {
+      if (!within_since) within_since = now;
+      if (std::chrono::duration<double>(now - *within_since).count() >= w.hold_s) return OkStatus();
+    } else {
+      within_since.reset();
+    }
+    if (std::chrono::duration<double>(now - start).count() > w.timeout_s)
+      return Error{ErrorCode::kTimeout, "the sensor did not hold " + std::to_string(w.setpoint_c) +
+                                            " C within " + std::to_string(w.timeout_s) +
+                                            " s (last " + std::to_string(t) + " C)"};
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  return Error{ErrorCode::kAborted, "stopped while cooling"};
+}
+
+void Controller::FitAfterRun(const Job& job) {
+  auto fits = FitRun(db_, *job.run, job.fit);
+  if (!fits.ok()) {
+    (void)db_.AddEvent(*job.run, "fit_failed", fits.error().message);
+    events_.Publish("fit", {{"run", *job.run}, {"error", fits.error().message}});
+    return;
+  }
+  for (const RunFit& f : *fits) {
+    events_.Publish("fit", {{"run", *job.run},
+                            {"model", f.model},
+                            {"status", fitting::ToString(f.summary.status)},
+                            {"width", f.summary.width.value},
+                            {"width_sigma", f.summary.width.sigma},
+                            {"reduced_chi2", f.summary.reduced_chi2},
+                            {"samples", f.samples}});
   }
 }
 

@@ -4,7 +4,8 @@
 // from the simulator) and keeps them alive; everything here works through the driver interfaces.
 //
 // States (Report().state):
-//   idle       no run in hand; queued jobs start at once
+//   idle       no run in hand; the next queued job starts at once (or at its start time)
+//   cooling    a scheduled job waits for the sensor to reach its setpoint and hold it
 //   running    the engine is measuring the current job's run
 //   paused     stopped by the operator after a stored point; resume continues, abort ends it
 //   suspended  stopped by a condition (sensor temperature out of band, monitor below its floor,
@@ -30,11 +31,12 @@
 #include "acquisition/engine.h"
 #include "acquisition/plan.h"
 #include "acquisition/storage.h"
+#include "daemon/schedule/schedule.h"
 #include "daemon/service/events.h"
 
 namespace gonio::daemon {
 
-enum class State { kIdle, kRunning, kPaused, kSuspended, kAborting, kFault };
+enum class State { kIdle, kCooling, kRunning, kPaused, kSuspended, kAborting, kFault };
 const char* ToString(State s);
 
 struct Job {
@@ -44,7 +46,15 @@ struct Job {
   std::string state;      // queued | running | paused | done | aborted | failed | cancelled
   std::optional<std::int64_t> run;  // once started
   std::string message;              // why it failed, was aborted or cancelled
+  // From a schedule (all optional): not before this time; cool and hold first; fit after.
+  std::optional<std::int64_t> start_at_unix;
+  std::optional<CoolerWait> cooler;
+  std::vector<std::string> fit;
+  std::string schedule;  // the schedule's name, if it came from one
 };
+
+// The job as the API and the event stream show it.
+nlohmann::json ToJson(const Job& j);
 
 // Conditions that suspend a run (Bluesky's suspenders). Unset ones are not checked.
 struct Suspenders {
@@ -92,6 +102,11 @@ class Controller {
 
   // Validates the plan (errors "name:line: what", kInvalidArgument) and queues it.
   Result<Job> Submit(const std::string& name, const std::string& plan_text);
+  // Validates the job's plan and queues it with its schedule options (job.id and state ignored).
+  Result<Job> Submit(Job job);
+  // Queues every run of a parsed schedule (the cooler wait before each entry's first run).
+  Result<std::vector<Job>> Submit(const Schedule& schedule);
+  const acquisition::PlanContext& context() const { return context_; }
   std::vector<Job> Jobs() const;  // current first, then the queue in order, then finished ones
   Result<Job> GetJob(std::int64_t id) const;  // kNotFound
   // Queued jobs only (kFailedPrecondition otherwise: a running one is aborted instead).
@@ -119,7 +134,9 @@ class Controller {
   void SetState(State s, const std::string& reason);  // mu_ held
   void PublishJob(const Job& j);                      // mu_ held
   void FinishCurrent(const std::string& state, const std::string& message);  // mu_ held
-  void SafeState();  // stages stopped; worker thread
+  void SafeState();                      // stages stopped; worker thread
+  Status CoolDown(const CoolerWait& w);  // worker thread, without mu_; stops on stop_
+  void FitAfterRun(const Job& job);      // worker thread, without mu_
 
   drivers::StageController& stages_;
   drivers::Camera& camera_;

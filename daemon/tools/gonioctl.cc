@@ -3,6 +3,9 @@
 //   gonioctl [--url http://127.0.0.1:8470] [--token-file F] [--json] COMMAND
 //     status                     state, current job, progress
 //     submit PLAN [--repeat N] [--wait]   queue a plan file (validated by the daemon)
+//     schedule FILE [--dry-run] [--wait]  queue a schedule's jobs (or list them, with timings)
+//     fit RUN [--model beckmann,ggx]      fit a stored run; the results are stored with it
+//     fits RUN                   the fits stored with a run (a schedule's, or fit's)
 //     queue                      jobs: current, queued, finished
 //     cancel JOB | move JOB POS  a queued job
 //     pause | resume | abort     run control
@@ -15,8 +18,10 @@
 // failed, suspended past its limit (fault), or the timeout.
 #include <httplib.h>
 
+#include <toml++/toml.h>
 #include <CLI/CLI.hpp>
 #include <chrono>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
@@ -161,6 +166,17 @@ int main(int argc, char** argv) {
   auto* exp = app.add_subcommand("export", "a run as the fitter's CSV");
   exp->add_option("run", id)->required();
   exp->add_option("--out", out)->required();
+  std::string schedule_path, models = "beckmann,ggx";
+  bool dry_run = false;
+  auto* sched = app.add_subcommand("schedule", "queue a schedule's jobs");
+  sched->add_option("file", schedule_path)->required()->check(CLI::ExistingFile);
+  sched->add_flag("--dry-run", dry_run, "list what would run and how long it would take");
+  sched->add_flag("--wait", wait_after, "then wait until the daemon is idle");
+  auto* fit = app.add_subcommand("fit", "fit a stored run (results stored with it)");
+  fit->add_option("run", id)->required();
+  fit->add_option("--model", models, "comma-separated models")->capture_default_str();
+  auto* fits = app.add_subcommand("fits", "the fits stored with a run");
+  fits->add_option("run", id)->required();
   auto* wait = app.add_subcommand("wait", "follow progress until the daemon is idle");
   wait->add_option("--timeout", timeout_s, "give up after S seconds (0: never)");
   try {
@@ -246,6 +262,91 @@ int main(int argc, char** argv) {
         });
     if (rc != 0 || !wait_after) return rc;
     return wait_idle();
+  }
+  if (*sched) {
+    // The daemon validates everything; here only the plan files are found and read, relative to
+    // the schedule, with the schedule's line when one is missing.
+    std::ifstream in(schedule_path);
+    std::stringstream text;
+    text << in.rdbuf();
+    json plans = json::object();
+    try {
+      const toml::table root = toml::parse(text.str(), schedule_path);
+      if (const toml::array* jobs = root["job"].as_array()) {
+        for (const toml::node& n : *jobs) {
+          const toml::table* t = n.as_table();
+          const toml::node* p = t ? t->get("plan") : nullptr;
+          const auto name = p ? p->value<std::string>() : std::nullopt;
+          if (!name || plans.contains(*name)) continue;  // the daemon names what is wrong
+          const auto file = std::filesystem::path(schedule_path).parent_path() / *name;
+          std::ifstream pf(file);
+          if (!pf) {
+            std::cerr << "gonioctl: " << schedule_path << ":" << p->source().begin.line
+                      << ": plan '" << *name << "': cannot read " << file.string() << "\n";
+            return 2;
+          }
+          std::stringstream pt;
+          pt << pf.rdbuf();
+          plans[*name] = pt.str();
+        }
+      }
+    } catch (const toml::parse_error& e) {
+      std::cerr << "gonioctl: " << schedule_path << ":" << e.source().begin.line << ": "
+                << e.description() << "\n";
+      return 2;
+    }
+    const json body{
+        {"name", schedule_path}, {"schedule", text.str()}, {"plans", plans}, {"dry_run", dry_run}};
+    const int rc = print(api.Post("/api/v1/schedules", body), [&](const json& j) {
+      if (dry_run) {
+        std::cout << "schedule " << schedule_path << " (dry run; nothing queued):\n";
+        for (const json& x : j["jobs"]) {
+          std::cout << "  line " << x["line"] << ": " << x["repeat"] << " x " << x.value("plan", "")
+                    << ": " << x["points"] << " points";
+          if (x.value("skipped", 0) > 0) std::cout << " (" << x["skipped"] << " skipped)";
+          std::cout << ", about " << Duration(x.value("estimate_s", 0.0)) << " each";
+          if (!x["start_at_unix"].is_null()) {
+            const std::time_t t = x["start_at_unix"].get<std::int64_t>();
+            char b[32];
+            std::strftime(b, sizeof b, "%F %R", std::localtime(&t));
+            std::cout << "; not before " << b;
+          }
+          if (!x["cooler_setpoint_c"].is_null())
+            std::cout << "; first cool to " << x["cooler_setpoint_c"].get<double>() << " C";
+          if (!x["fit"].empty()) std::cout << "; fit " << x["fit"].dump() << " after each";
+          std::cout << "\n";
+        }
+      } else {
+        for (const json& x : j["jobs"])
+          std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
+      }
+      std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
+                << " of motion and exposure (start times and cooling not counted)\n";
+    });
+    if (rc != 0 || !wait_after || dry_run) return rc;
+    return wait_idle();
+  }
+  auto print_fit = [](const json& f) {
+    std::cout << "  " << std::setw(10) << f.value("model", "") << "  " << f.value("width_name", "")
+              << " " << f["width"]["value"] << " +- " << f["width"]["sigma"] << "  chi2/dof "
+              << f["reduced_chi2"] << "  " << f.value("status", "");
+    if (f.contains("samples")) std::cout << " (" << f["samples"].get<std::string>() << ")";
+    std::cout << "\n";
+  };
+  if (*fits)
+    return print(api.Get("/api/v1/runs/" + std::to_string(id) + "/fits"), [&](const json& j) {
+      std::cout << "run " << id << ": " << j["fits"].size() << " stored fit(s)\n";
+      for (const json& f : j["fits"]) print_fit(f["summary"]);
+    });
+  if (*fit) {
+    json list = json::array();
+    std::stringstream ms(models);
+    for (std::string m; std::getline(ms, m, ',');) list.push_back(m);
+    return print(api.Post("/api/v1/runs/" + std::to_string(id) + "/fit", {{"models", list}}),
+                 [&](const json& j) {
+                   std::cout << "run " << id << ":\n";
+                   for (const json& f : j["fits"]) print_fit(f);
+                 });
   }
   if (*queue)
     return print(api.Get("/api/v1/jobs"), [](const json& j) {

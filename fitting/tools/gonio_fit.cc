@@ -17,6 +17,7 @@
 
 #include "fitting/fitter.h"
 #include "fitting/samples_csv.h"
+#include "fitting/summary_json.h"
 
 namespace {
 
@@ -56,30 +57,6 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
     if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
   }
   std::cout << "model choice: " << choice.reason << "\n";
-}
-
-nlohmann::json ToJson(const FitSummary& f) {
-  auto param = [](const Parameter& p) {
-    return nlohmann::json{{"value", p.value}, {"sigma", p.sigma}};
-  };
-  return {{"model", Describe(f.model)},
-          {"family", Name(f.model.family)},
-          {"status", ToString(f.status)},
-          {"message", f.message},
-          {"width_name", WidthName(f.model.family)},
-          {"width", param(f.width)},
-          {"scale", param(f.scale)},
-          {"eta", param(f.eta)},
-          {"alpha_equivalent", f.alpha_equivalent},
-          {"n_points", f.n_points},
-          {"n_params", f.n_params},
-          {"chi2", f.chi2},
-          {"reduced_chi2", f.reduced_chi2},
-          {"aic", f.aic},
-          {"bic", f.bic},
-          {"iterations", f.iterations},
-          {"local_fits", f.local_fits},
-          {"points_in_lobe", f.points_in_lobe}};
 }
 
 }  // namespace

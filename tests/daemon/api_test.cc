@@ -7,6 +7,7 @@
 #include <httplib.h>
 
 #include <chrono>
+#include <ctime>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -302,6 +303,96 @@ TEST_F(DaemonApi, EventStreamCarriesStateJobAndProgress) {
   EXPECT_NE(stream.find("event: progress\ndata: {"), std::string::npos);
   EXPECT_NE(stream.find("\"done\":10,"), std::string::npos);  // the last point
   EXPECT_NE(stream.find("id: 1\n"), std::string::npos);
+}
+
+TEST_F(DaemonApi, SchedulesAreValidatedWithFileAndLineAndDryRunsQueueNothing) {
+  auto post = [&](const std::string& schedule, const json& plans, bool dry = false) {
+    return Post(
+        "/api/v1/schedules",
+        json{{"name", "night.toml"}, {"schedule", schedule}, {"plans", plans}, {"dry_run", dry}});
+  };
+  auto message = [](const json& j) { return j["error"].value("message", std::string()); };
+  const json plans{{"quick.toml", kPlan}};
+  const auto unknown = post("[[job]]\nplan = \"quick.toml\"\nrepeats = 2\n", plans);
+  EXPECT_EQ(unknown.first, 400);
+  EXPECT_NE(message(unknown.second).find("night.toml:3: unknown key 'repeats'"), std::string::npos)
+      << message(unknown.second);
+  const auto missing = post("[[job]]\nplan = \"other.toml\"\n", plans);
+  EXPECT_NE(message(missing.second).find("night.toml:2: plan 'other.toml' was not sent"),
+            std::string::npos)
+      << message(missing.second);
+  std::string broken = kPlan;
+  broken.replace(broken.find("frames = 2"), 10, "frames = 0");
+  const auto bad_plan = post("[[job]]\nplan = \"quick.toml\"\n", json{{"quick.toml", broken}});
+  EXPECT_NE(message(bad_plan.second).find("quick.toml:9:"), std::string::npos)
+      << message(bad_plan.second);
+  const auto bad_time = post("[[job]]\nplan = \"quick.toml\"\nstart_at = \"tomorrow\"\n", plans);
+  EXPECT_NE(message(bad_time.second).find("night.toml:3: 'start_at'"), std::string::npos)
+      << message(bad_time.second);
+  const auto bad_fit = post("[[job]]\nplan = \"quick.toml\"\nfit = [\"cook-torrance\"]\n", plans);
+  EXPECT_NE(message(bad_fit.second).find("night.toml:3: unknown model"), std::string::npos)
+      << message(bad_fit.second);
+  const auto no_setpoint =
+      post("[[job]]\nplan = \"quick.toml\"\n[job.cooler]\nhold_s = 5\n", plans);
+  EXPECT_NE(message(no_setpoint.second).find("needs 'setpoint_c'"), std::string::npos)
+      << message(no_setpoint.second);
+  // A dry run: the runs, their points and time, nothing queued.
+  const auto [sd, dry] = post("[[job]]\nplan = \"quick.toml\"\nrepeat = 3\n", plans, true);
+  EXPECT_EQ(sd, 200) << dry.dump();
+  ASSERT_EQ(dry["jobs"].size(), 1u);
+  EXPECT_EQ(dry["jobs"][0]["points"], 10);
+  EXPECT_EQ(dry["jobs"][0]["repeat"], 3);
+  EXPECT_GT(dry["jobs"][0]["estimate_s"].get<double>(), 0);
+  EXPECT_NEAR(dry["estimate_s"].get<double>(), 3 * dry["jobs"][0]["estimate_s"].get<double>(),
+              1e-9);
+  EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);
+  EXPECT_EQ(State(), "idle");
+}
+
+TEST_F(DaemonApi, AScheduleWaitsForItsStartTimeCoolsRunsItsRepeatsAndFitsEachRun) {
+  const std::int64_t start_at = std::time(nullptr) + 3;
+  char when[32];
+  std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%S", std::localtime(&start_at));
+  const std::string schedule = std::string("[[job]]\nplan = \"quick.toml\"\nrepeat = 2\n") +
+                               "start_at = \"" + when + "\"\nfit = [\"beckmann\"]\n" +
+                               "[job.cooler]\nsetpoint_c = -10\nhold_s = 0.3\ntimeout_s = 60\n";
+  const auto [st, queued] = Post(
+      "/api/v1/schedules",
+      json{{"name", "night.toml"}, {"schedule", schedule}, {"plans", {{"quick.toml", kPlan}}}});
+  ASSERT_EQ(st, 201) << queued.dump();
+  ASSERT_EQ(queued["jobs"].size(), 2u);
+  // Nothing starts before its time.
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  EXPECT_EQ(State(), "idle");
+  EXPECT_EQ(Get("/api/v1/runs").second["runs"].size(), 0u);
+  ASSERT_TRUE(WaitFor([&] { return State() == "cooling"; }, 10)) << State();
+  EXPECT_GE(std::time(nullptr), start_at);
+  ASSERT_TRUE(controller->WaitIdle(120)) << State();
+  auto t = inst.camera->TemperatureC();
+  ASSERT_TRUE(t.ok());
+  EXPECT_NEAR(*t, -10, 1.0);  // cooled, and held through the runs
+  for (const json& j : queued["jobs"]) {
+    auto job = controller->GetJob(j["id"].get<std::int64_t>());
+    ASSERT_TRUE(job.ok() && job->run);
+    EXPECT_EQ(job->state, "done");
+    ExpectComplete(*job->run);
+    // The fit after each run, stored with it: the simulated ground glass's alpha.
+    auto [sf, fits] = Get("/api/v1/runs/" + std::to_string(*job->run) + "/fits");
+    EXPECT_EQ(sf, 200);
+    ASSERT_EQ(fits["fits"].size(), 1u) << fits.dump();
+    const json& summary = fits["fits"][0]["summary"];
+    EXPECT_EQ(summary["family"], "beckmann");
+    EXPECT_NEAR(summary["width"]["value"].get<double>(), 0.344, 0.02) << summary.dump();
+  }
+  // A fit asked through the API is stored beside it; an unknown model is a 400.
+  const auto first_run = controller->GetJob(queued["jobs"][0]["id"].get<std::int64_t>())->run;
+  const std::string fit_path = "/api/v1/runs/" + std::to_string(*first_run) + "/fit";
+  auto [sg, ggx] = Post(fit_path, json{{"models", {"ggx"}}});
+  EXPECT_EQ(sg, 200) << ggx.dump();
+  EXPECT_EQ(ggx["fits"][0]["family"], "ggx");
+  EXPECT_EQ(Get("/api/v1/runs/" + std::to_string(*first_run) + "/fits").second["fits"].size(), 2u);
+  EXPECT_EQ(Post(fit_path, json{{"models", {"nope"}}}).first, 400);
+  EXPECT_EQ(Post("/api/v1/runs/999/fit", json::object()).first, 404);
 }
 
 // A suspender on the sensor temperature (setpoint -10 C +- 2 C). The cooler fails during the run:

@@ -1,0 +1,29 @@
+// Fitting a stored run (goniod: a schedule's "fit" after each run, POST /api/v1/runs/{id}/fit).
+// The samples are the run's measurements; when the run has a normal-incidence sweep and others
+// beside it, the fit uses the normal-incidence samples only (Walter 2007 section 6: fit at normal
+// incidence, predict the rest), otherwise all of them. Each model's summary is stored in the
+// run's fit_results and returned.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "acquisition/storage.h"
+#include "fitting/fitter.h"
+
+namespace gonio::daemon {
+
+struct RunFit {
+  std::string model;
+  fitting::FitSummary summary;
+  std::int64_t stored_id = 0;
+  std::string samples;  // "normal incidence" or "all incidences"
+};
+
+// Models by name (beckmann, ggx, phong, sun2008; kInvalidArgument naming an unknown one), the
+// specimen's eta fixed. kNotFound for an unknown run; kInvalidArgument when the run has too few
+// samples to fit.
+Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
+                                   const std::vector<std::string>& models);
+
+}  // namespace gonio::daemon

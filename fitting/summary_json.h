@@ -1,0 +1,35 @@
+// A fit's summary as JSON: what gonio-fit writes to fit_summary.json and what goniod stores in
+// the fit_results table. Header-only, so that the fitting library itself needs no JSON library.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include "fitting/fitter.h"
+
+namespace gonio::fitting {
+
+inline nlohmann::json ToJson(const FitSummary& f) {
+  auto param = [](const Parameter& p) {
+    return nlohmann::json{{"value", p.value}, {"sigma", p.sigma}};
+  };
+  return {{"model", Describe(f.model)},
+          {"family", Name(f.model.family)},
+          {"status", ToString(f.status)},
+          {"message", f.message},
+          {"width_name", WidthName(f.model.family)},
+          {"width", param(f.width)},
+          {"scale", param(f.scale)},
+          {"eta", param(f.eta)},
+          {"alpha_equivalent", f.alpha_equivalent},
+          {"n_points", f.n_points},
+          {"n_params", f.n_params},
+          {"chi2", f.chi2},
+          {"reduced_chi2", f.reduced_chi2},
+          {"aic", f.aic},
+          {"bic", f.bic},
+          {"iterations", f.iterations},
+          {"local_fits", f.local_fits},
+          {"points_in_lobe", f.points_in_lobe}};
+}
+
+}  // namespace gonio::fitting

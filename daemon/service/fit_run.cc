@@ -24,9 +24,9 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
   std::vector<fitting::Sample> all, normal;
   bool other = false;
   for (const auto& r : *rows) {
-    auto s = fitting::SampleFromBenchAngles(r.point.theta_l_deg, r.point.phi_deg,
-                                            r.point.theta_v_deg, r.point.phi_deg, r.m.value,
-                                            r.m.sigma);
+    auto s =
+        fitting::SampleFromBenchAngles(r.point.theta_l_deg, r.point.phi_deg, r.point.theta_v_deg,
+                                       r.point.phi_deg, r.m.value, r.m.sigma);
     s.line = r.point.index;
     all.push_back(s);
     if (std::abs(r.point.theta_l_deg) < 0.5)

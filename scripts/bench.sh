@@ -7,7 +7,11 @@
 #   scipy_peer.py    scipy least_squares vs gonio  -> scipy_peer.json
 #   truth_bench      ground-truth cost/accuracy and the single-scattering failure map
 #                                                  -> truth.json, truth_cost.png, truth_failure.png
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth ...]   (default: all)
+#   acquisition_sweep  the engine's efficiency on the simulated instrument -> acquisition_sweep.md
+#   api_latency      goniod's /status latency under load during a sweep, and the sweep's slowdown
+#                                                  -> api_latency.md
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|sweep|api|soak ...]
+#        (default: all but soak)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh
@@ -15,7 +19,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene sweep)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene sweep api)
 # Debian's matplotlib/scipy are installed for the system interpreter (DESIGN.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -42,9 +46,11 @@ for part in "${parts[@]}"; do
       build-release/bench/scene_rectangle | tee out/bench/scene_rectangle.md ;;
     sweep)  # holds the GigE Vision port: no other simulated camera may run meanwhile
       build-release/bench/acquisition_sweep 5 10 | tee out/bench/acquisition_sweep.md ;;
+    api)    # goniod's API under load during a sweep; holds the GigE Vision port too
+      build-release/bench/api_latency 50 2 100 | tee out/bench/api_latency.md ;;
     soak)   # not in the default set: 10,000 points, several minutes
       build-release/bench/acquisition_sweep soak 10000 100 | tee out/bench/acquisition_soak.md ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, sweep, soak)" >&2
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, sweep, api, soak)" >&2
        exit 2 ;;
   esac
 done

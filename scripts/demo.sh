@@ -4,8 +4,9 @@
 #   2. starts gonio-sim (stages over Modbus TCP, the cooled CCD over GigE Vision, the source
 #      monitor) on 127.0.0.1 with an accelerated clock;
 #   3. starts goniod (the daemon, its API on 127.0.0.1) on that instrument and, with gonioctl,
-#      submits the plan measuring the simulated ground glass at theta_i = 0, 30, 60, 80 degrees,
-#      follows it to the end and exports it (SQLite: out/demo/runs.sqlite);
+#      runs the default schedule (config/schedule_demo.toml): cool the CCD, measure the simulated
+#      ground glass at theta_i = 0, 30, 60, 80 degrees, fit Beckmann and GGX after the run (stored
+#      with it); then exports the run (SQLite: out/demo/runs.sqlite);
 #   4. fits Beckmann and GGX at normal incidence with gonio-fit, prints the table like Walter
 #      2007's Figure 12 beside the simulator's true values, and writes the plot;
 #   5. stops everything it started.
@@ -64,9 +65,11 @@ ctl() {
     --token-file "$work/runs.sqlite.token" "$@"
 }
 
-echo "== measuring (gonioctl submit config/plan_demo.toml --wait) =="
-ctl submit config/plan_demo.toml --wait
+echo "== the default schedule (gonioctl schedule config/schedule_demo.toml) =="
+ctl schedule config/schedule_demo.toml --dry-run
+ctl schedule config/schedule_demo.toml --wait
 ctl runs
+ctl fits 1
 ctl export 1 --out "$work/run1.csv"
 
 echo "== fitting (gonio-fit): normal incidence, then the other incidences predicted =="

@@ -9,6 +9,7 @@ and each model's fitted D against the half-vector angle.
 Usage: /usr/bin/python3 fitting/tools/plot_fit.py FIT_DIR [OUT.png]   (default FIT_DIR/fit.png)
 """
 import csv
+import math
 import os
 import sys
 from collections import defaultdict
@@ -37,6 +38,15 @@ def main():
     if not curves:
         sys.exit(f"plot_fit: {d}/fit_curves.csv has no samples")
     models = [k[len("pred_"):] for k in curves[0] if k.startswith("pred_")]
+    # A failed fit leaves non-finite predictions: its curves are left out (and said so), the rest
+    # is drawn.
+    finite = [m for m in models
+              if all(math.isfinite(float(r["pred_" + m])) for r in curves)
+              and all(math.isfinite(float(r["d_" + m])) for r in fitted)]
+    for m in models:
+        if m not in finite:
+            print(f"plot_fit: {m}: the fit did not converge (non-finite curve); not drawn")
+    models = finite
 
     by_incidence = defaultdict(list)
     for r in curves:
@@ -71,7 +81,7 @@ def main():
         pts = [r for r in emp if r["model"] == m]
         dv = [float(r["d"]) for r in pts]
         ds = [float(r["d_sigma"]) for r in pts]
-        d_max = max([d_max] + dv)
+        d_max = max([d_max] + [v for v in dv if math.isfinite(v)])
         bottom.errorbar([float(r["theta_h_deg"]) for r in pts], dv,
                         [[min(e, 0.999 * v) for e, v in zip(ds, dv)], ds], fmt=".", ms=3,
                         alpha=0.5, label=f"empirical D (scale of {m})")

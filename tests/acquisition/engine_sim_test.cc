@@ -30,8 +30,9 @@ class EngineOnSim : public ::testing::Test {
     return sim::MicrofacetTruth("beckmann", 0.344, 1.51);
   }
   void SetUp() override {
-    inst.Start({.clock_speed = 300, .gain_db = 12, .lamp = LampOpts(), .truth = Truth()});
-    if (HasFatalFailure()) return;
+    const Status started =
+        inst.Start({.clock_speed = 300, .gain_db = 12, .lamp = LampOpts(), .truth = Truth()});
+    ASSERT_TRUE(started.ok()) << started.error().message;
     db_path = (std::filesystem::temp_directory_path() /
                ("gonio_engine_" + std::to_string(::getpid()) + ".sqlite"))
                   .string();

@@ -46,8 +46,8 @@ class DaemonApi : public ::testing::Test {
   virtual Suspenders Suspend() { return {}; }
 
   void SetUp() override {
-    inst.Start({});
-    if (HasFatalFailure()) return;
+    const Status started = inst.Start({});
+    ASSERT_TRUE(started.ok()) << started.error().message;
     db_path = (std::filesystem::temp_directory_path() /
                ("gonio_api_" + std::to_string(::getpid()) + ".sqlite"))
                   .string();

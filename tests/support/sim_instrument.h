@@ -1,10 +1,9 @@
 // The simulated instrument in-process, reached through the real drivers: two axes over Modbus TCP
 // on 127.0.0.1, the cooled CCD over GigE Vision (Aravis's fake camera), the source monitor over
-// USBTMC framing. For tests of what sits on the driver interfaces (the engine, the daemon).
+// USBTMC framing. For tests and benchmarks of what sits on the driver interfaces (the engine, the
+// daemon).
 // One GigE camera per machine: tests using it hold the CTest resource lock "gvcp".
 #pragma once
-
-#include <gtest/gtest.h>
 
 #include <memory>
 #include <vector>
@@ -28,9 +27,9 @@ struct SimInstrumentOptions {
 
 class SimInstrument {
  public:
-  // Starts the devices and opens the drivers on them; fails the calling test (ASSERT) if any
-  // does not come up: check ::testing::Test::HasFatalFailure() after.
-  void Start(const SimInstrumentOptions& o) {
+  // Starts the devices and opens the drivers on them; the first that does not come up is the
+  // error.
+  Status Start(const SimInstrumentOptions& o) {
     clock = std::make_unique<sim::ScaledClock>(o.clock_speed);
     sample_axis = std::make_unique<sim::SimulatedAxis>(*clock, sim::AxisOptions{}, "sample");
     arm_axis = std::make_unique<sim::SimulatedAxis>(*clock, sim::AxisOptions{}, "arm");
@@ -39,7 +38,7 @@ class SimInstrument {
         sim::BenchGeometry{}, o.truth ? o.truth : sim::MicrofacetTruth("beckmann", 0.344, 1.51));
     auto tcp = sim::StageModbusTcpServer::Start({sample_axis.get(), arm_axis.get()}, 0, nullptr,
                                                 clock.get());
-    ASSERT_TRUE(tcp.ok());
+    if (!tcp.ok()) return tcp.error();
     tcp_server = std::move(*tcp);
     auto cam = sim::SimulatedCamera::StartGigE(
         *clock, *scene,
@@ -48,11 +47,11 @@ class SimInstrument {
                                   180 + arm_axis->PositionSteps() / 1000, 0};
         },
         *lamp);
-    ASSERT_TRUE(cam.ok()) << cam.error().message;
+    if (!cam.ok()) return cam.error();
     sim_camera = std::move(*cam);
     meter_device = std::make_unique<sim::SimulatedPowerMeter>(*clock, *lamp);
     meter = std::make_unique<drivers::ScpiPowerMeter>(*meter_device);
-    ASSERT_TRUE(meter->SetAveraging(100).ok());
+    if (Status m = meter->SetAveraging(100); !m.ok()) return m;
 
     drivers::ModbusLink link;
     link.port = tcp_server->port();
@@ -61,15 +60,16 @@ class SimInstrument {
     drivers::AxisSettings a = s;
     a.name = "arm", a.slave_id = 2, a.degrees_at_zero = 180, a.min_deg = 0, a.max_deg = 360;
     auto st = drivers::ModbusStageController::Open(link, {s, a});
-    ASSERT_TRUE(st.ok()) << st.error().message;
+    if (!st.ok()) return st.error();
     stages = std::move(*st);
     axes = {s, a};
     drivers::CameraSettings cs;
     cs.gain_db = o.gain_db;
     gain_db = o.gain_db;
     auto c = drivers::AravisCamera::Open(cs);
-    ASSERT_TRUE(c.ok()) << c.error().message;
+    if (!c.ok()) return c.error();
     camera = std::move(*c);
+    return OkStatus();
   }
 
   // Declared in dependency order: destroyed drivers first, then the servers, then what they read.

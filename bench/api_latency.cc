@@ -1,0 +1,141 @@
+// goniod's API under load while a sweep runs (issue #7, "Speed"): the latency of GET /status at
+// a steady request rate during a simulated sweep (percentiles), and how much that load slows the
+// sweep (the same plan measured with and without it). The controller, the API and the simulated
+// instrument run in-process on the real drivers (one GigE camera per machine: run alone).
+//
+//   build/bench/api_latency [requests_per_s=50] [clients=2] [clock_speed=100]
+//
+// Prints the percentiles in milliseconds and the slowdown as a ratio; shared, noisy machines make
+// single runs rough: repeat and compare ratios.
+#include <httplib.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <thread>
+#include <vector>
+
+#include "daemon/api/http_api.h"
+#include "daemon/service/controller.h"
+#include "tests/support/sim_instrument.h"
+
+namespace {
+
+using namespace gonio;
+using Clock = std::chrono::steady_clock;
+
+constexpr const char* kPlan = R"(sample = "ground-glass-G1"
+[geometry]
+incidence_deg = [0, 30]
+view_about = "refracted"
+view_from_deg = -12
+view_to_deg = 12
+view_step_deg = 3
+[exposure]
+frames = 4
+initial_s = 0.05
+[rectangle]
+x = 253
+y = 246
+width = 6
+height = 19
+)";
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5))];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const double rate = argc > 1 ? std::atof(argv[1]) : 50;
+  const int clients = argc > 2 ? std::atoi(argv[2]) : 2;
+  const double speed = argc > 3 ? std::atof(argv[3]) : 100;
+  testing::SimInstrument inst;
+  testing::SimInstrumentOptions so;
+  so.clock_speed = speed;
+  if (Status s = inst.Start(so); !s.ok()) {
+    std::fprintf(stderr, "api_latency: the simulated instrument did not start: %s\n",
+                 s.error().ToString().c_str());
+    return 1;
+  }
+  const std::string db_path =
+      (std::filesystem::temp_directory_path() / "gonio_api_latency.sqlite").string();
+  for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
+  auto db = acquisition::Storage::Open(db_path);
+  if (!db.ok()) return 1;
+  acquisition::PlanContext ctx;
+  ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51}};
+  ctx.axes = inst.axes;
+  ctx.image_width = ctx.image_height = 512;
+  daemon::ControllerOptions co;
+  co.engine.linear_limit_adu = 40000;
+  daemon::Controller controller(*inst.stages, *inst.camera, inst.meter.get(), **db, ctx, co);
+  if (!controller.Start().ok()) return 1;
+  const std::string token = daemon::NewToken();
+  auto api = daemon::ApiServer::Start(
+      controller, {.host = "127.0.0.1", .port = 0, .token = token, .db_path = db_path});
+  if (!api.ok()) return 1;
+  const int port = (*api)->port();
+
+  // One sweep, timed from submit to idle; with `load`, clients poll /status meanwhile.
+  auto sweep = [&](bool load, std::vector<double>* latencies_ms, int* errors) {
+    std::atomic<bool> done{false};
+    std::vector<std::thread> threads;
+    std::vector<std::vector<double>> per(clients);
+    std::atomic<int> failed{0};
+    if (load)
+      for (int c = 0; c < clients; ++c)
+        threads.emplace_back([&, c] {
+          httplib::Client cli("127.0.0.1", port);
+          const auto period = std::chrono::duration<double>(clients / rate);
+          auto next = Clock::now();
+          while (!done) {
+            const auto t0 = Clock::now();
+            auto r = cli.Get("/api/v1/status");
+            const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+            if (!r || r->status != 200)
+              ++failed;
+            else
+              per[c].push_back(ms);
+            next += std::chrono::duration_cast<Clock::duration>(period);
+            std::this_thread::sleep_until(next);
+          }
+        });
+    const auto t0 = Clock::now();
+    auto job = controller.Submit("bench.toml", kPlan);
+    if (!job.ok() || !controller.WaitIdle(600)) std::fprintf(stderr, "api_latency: sweep failed\n");
+    const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    done = true;
+    for (auto& t : threads) t.join();
+    if (latencies_ms != nullptr)
+      for (const auto& v : per) latencies_ms->insert(latencies_ms->end(), v.begin(), v.end());
+    if (errors != nullptr) *errors = failed;
+    return seconds;
+  };
+
+  sweep(false, nullptr, nullptr);  // warm-up: the camera's first frames, page cache
+  const double quiet = sweep(false, nullptr, nullptr);
+  std::vector<double> lat;
+  int errors = 0;
+  const double loaded = sweep(true, &lat, &errors);
+  const double quiet2 = sweep(false, nullptr, nullptr);
+  const double base = 0.5 * (quiet + quiet2);
+  std::printf("api_latency: %d clients at %.0f requests/s in all, clock x%.0f, 18-point sweep\n",
+              clients, rate, speed);
+  std::printf("  GET /api/v1/status during the sweep: %zu requests, %d failed\n", lat.size(),
+              errors);
+  std::printf("  latency ms: p50 %.2f  p95 %.2f  p99 %.2f  max %.2f\n", Percentile(lat, 0.5),
+              Percentile(lat, 0.95), Percentile(lat, 0.99), Percentile(lat, 1.0));
+  std::printf("  sweep: %.2f s without load (two runs: %.2f, %.2f), %.2f s with it: ratio %.3f\n",
+              base, quiet, quiet2, loaded, loaded / base);
+  controller.Shutdown();
+  (*api)->Stop();
+  for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
+  return errors == 0 ? 0 : 1;
+}

@@ -75,21 +75,7 @@ json RunJson(const acquisition::RunInfo& r) {
 json StatusJson(const StatusReport& s) {
   json o{{"state", ToString(s.state)}, {"reason", s.reason}, {"queued", s.queued}};
   o["job"] = s.job ? ToJson(*s.job) : json(nullptr);
-  if (s.progress) {
-    const auto& p = *s.progress;
-    o["progress"] = {{"done", p.done},
-                     {"total", p.total},
-                     {"theta_l_deg", p.point.theta_l_deg},
-                     {"theta_v_deg", p.point.theta_v_deg},
-                     {"phi_deg", p.point.phi_deg},
-                     {"last_value", p.last.value},
-                     {"last_sigma", p.last.sigma},
-                     {"last_exposure_s", p.last.exposure_s},
-                     {"elapsed_s", p.elapsed_s},
-                     {"eta_s", p.eta_s}};
-  } else {
-    o["progress"] = nullptr;
-  }
+  o["progress"] = s.progress ? ToJson(*s.progress) : json(nullptr);
   return o;
 }
 

@@ -34,6 +34,19 @@ nlohmann::json ToJson(const Job& j) {
   return o;
 }
 
+nlohmann::json ToJson(const acquisition::Progress& p) {
+  return {{"done", p.done},
+          {"total", p.total},
+          {"theta_l_deg", p.point.theta_l_deg},
+          {"theta_v_deg", p.point.theta_v_deg},
+          {"phi_deg", p.point.phi_deg},
+          {"value", p.last.value},
+          {"sigma", p.last.sigma},
+          {"exposure_s", p.last.exposure_s},
+          {"elapsed_s", p.elapsed_s},
+          {"eta_s", p.eta_s}};
+}
+
 const char* ToString(State s) {
   switch (s) {
     case State::kIdle:
@@ -468,15 +481,9 @@ void Controller::OnPoint(const Progress& p) {
   std::lock_guard lock(mu_);
   progress_ = p;
   suspended_since_ = 0;  // a point was measured: whatever suspended the run has cleared
-  events_.Publish("progress", {{"run", current_ && current_->run ? *current_->run : 0},
-                               {"done", p.done},
-                               {"total", p.total},
-                               {"theta_l_deg", p.point.theta_l_deg},
-                               {"theta_v_deg", p.point.theta_v_deg},
-                               {"value", p.last.value},
-                               {"sigma", p.last.sigma},
-                               {"exposure_s", p.last.exposure_s},
-                               {"eta_s", p.eta_s}});
+  nlohmann::json event = ToJson(p);
+  event["run"] = current_ && current_->run ? *current_->run : 0;
+  events_.Publish("progress", event);
   if (why && stop_reason_ == StopReason::kNone) {
     stop_reason_ = StopReason::kSuspend;
     stop_ = true;

@@ -53,8 +53,9 @@ struct Job {
   std::string schedule;  // the schedule's name, if it came from one
 };
 
-// The job as the API and the event stream show it.
+// The job, and a run's progress, as the API and the event stream show them.
 nlohmann::json ToJson(const Job& j);
+nlohmann::json ToJson(const acquisition::Progress& p);
 
 // Conditions that suspend a run (Bluesky's suspenders). Unset ones are not checked.
 struct Suspenders {

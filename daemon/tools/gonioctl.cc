@@ -107,8 +107,8 @@ void PrintStatus(const json& s) {
   if (s["progress"].is_object()) {
     const json& p = s["progress"];
     std::cout << "progress: " << p["done"] << "/" << p["total"] << " points, at theta_l "
-              << p["theta_l_deg"] << " theta_v " << p["theta_v_deg"] << ", last " << p["last_value"]
-              << " +- " << p["last_sigma"] << ", ETA " << Duration(p.value("eta_s", 0.0)) << "\n";
+              << p["theta_l_deg"] << " theta_v " << p["theta_v_deg"] << ", last " << p["value"]
+              << " +- " << p["sigma"] << ", ETA " << Duration(p.value("eta_s", 0.0)) << "\n";
   }
   std::cout << "queued: " << s.value("queued", 0) << "\n";
 }

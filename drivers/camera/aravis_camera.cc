@@ -162,6 +162,21 @@ Result<cv::Size> AravisCamera::ImageSize() {
   return cv::Size(w, h);
 }
 
+_ArvBuffer* AravisCamera::PopFrame(double wait_s) {
+  // A buffer handed back still CLEARED never received a packet: it holds no frame, not even a
+  // failed one (Aravis occasionally returns one at once on a loaded machine). It goes back to the
+  // pool and the wait for this trigger's frame goes on, so that frames and triggers stay paired.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_s);
+  while (true) {
+    const double left =
+        std::chrono::duration<double>(deadline - std::chrono::steady_clock::now()).count();
+    if (left <= 0) return nullptr;
+    ArvBuffer* b = arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(left * 1e6));
+    if (b == nullptr || arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) return b;
+    arv_stream_push_buffer(stream_, b);
+  }
+}
+
 Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_problem) {
   for (int attempt = first_attempt; attempt <= first_attempt + s_.retries; ++attempt) {
     // Stale frames (from before this call) go back to the pool unread.
@@ -183,7 +198,7 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
       continue;
     }
     const double wait_s = exposure_s_ + s_.frame_timeout_s;
-    ArvBuffer* b = arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(wait_s * 1e6));
+    ArvBuffer* b = PopFrame(wait_s);
     if (b == nullptr) {
       *last_problem = "no frame within " + std::to_string(wait_s) + " s";
       continue;

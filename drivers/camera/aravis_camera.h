@@ -10,6 +10,7 @@
 
 struct _ArvCamera;
 struct _ArvStream;
+struct _ArvBuffer;
 
 namespace gonio::drivers {
 
@@ -36,6 +37,8 @@ class AravisCamera final : public Camera {
   void Disconnect();
   Status Reopen();  // Disconnect, Connect, restore the exposure; counts reopens_
   Status Configure();
+  // This trigger's frame (any status but CLEARED) within wait_s, or null.
+  _ArvBuffer* PopFrame(double wait_s);
   // One trigger and its retries; kTimeout carries only the last problem (in *last_problem).
   Result<Frame> SnapOnce(int first_attempt, std::string* last_problem);
 

@@ -1,11 +1,14 @@
 #include "sim/camera/camera.h"
 
+#include <arpa/inet.h>
 #include <arv.h>
 
 #include <chrono>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
 
 namespace gonio::sim {
 
@@ -45,6 +48,31 @@ SimulatedCamera::SimulatedCamera(const Clock& clock, const Scene& scene, AnglesS
       cooler_(o_.cooler, clock.Now()),
       rng_(o_.seed) {}
 
+namespace {
+
+// Whether a UDP socket is bound to the GVCP port (3956) on this address or on any address, from
+// /proc/net/udp. GLib binds with SO_REUSEADDR, so a second fake camera would bind beside a first
+// one that is still shutting down, and the clients' packets would go to either: it must wait.
+bool GvcpPortBound(const std::string& address) {
+  in_addr a{};
+  if (inet_pton(AF_INET, address.c_str(), &a) != 1) return false;
+  char mine[16], any[16];
+  std::snprintf(mine, sizeof mine, "%08X:0F74", static_cast<unsigned>(a.s_addr));
+  std::snprintf(any, sizeof any, "%08X:0F74", 0u);
+  std::ifstream udp("/proc/net/udp");
+  std::string line;
+  std::getline(udp, line);  // header
+  while (std::getline(udp, line)) {
+    std::istringstream fields(line);
+    std::string slot, local;
+    fields >> slot >> local;
+    if (local == mine || local == any) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
 Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
     const Clock& clock, const Scene& scene, AnglesSource angles, const Lamp& lamp,
     CameraOptions options, FaultPlan* faults) {
@@ -55,6 +83,14 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
   }
   if (!std::filesystem::exists(options.genicam_path)) {
     return Error{ErrorCode::kIo, "GenICam file not found: " + options.genicam_path};
+  }
+  // A simulator that has just been stopped may hold the port for a moment longer.
+  for (int i = 0; GvcpPortBound(options.address); ++i) {
+    if (i == 100)
+      return Error{ErrorCode::kIo, "GigE Vision port " + options.address +
+                                       ":3956 is taken by another process (another simulated "
+                                       "camera, or arv-fake-gv-camera-0.8?)"};
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
   std::unique_ptr<SimulatedCamera> cam(
       new SimulatedCamera(clock, scene, std::move(angles), lamp, std::move(options), faults));

@@ -7,13 +7,9 @@ set -euo pipefail
 sim=$1 acq=$2 src=$3 work=$4
 mkdir -p "$work"
 rm -f "$work"/*
-"$sim" --speed 40 --port 0 --port-file "$work/port" --monitor-port 0 \
-  --monitor-port-file "$work/mport" > "$work/sim.log" 2>&1 &
-pid=$!
-trap 'kill $pid 2>/dev/null || true' EXIT
-for _ in $(seq 200); do [[ -s "$work/port" ]] && break; sleep 0.05; done
-sed -e "s/^port = 5020/port = $(cat "$work/port")/" -e "s/^port = 5021/port = $(cat "$work/mport")/" \
-  "$src/config/instrument.toml" > "$work/instrument.toml"
+source "$src/tests/support/gonio_sim.sh"
+trap stop_gonio_sim EXIT
+start_gonio_sim "$sim" 40 "$work" "$src"
 cat > "$work/plan.toml" <<'PLAN'
 sample = "ground-glass-G1"
 [geometry]

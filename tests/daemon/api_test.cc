@@ -119,6 +119,17 @@ class DaemonApi : public ::testing::Test {
     }
     return f();
   }
+  // Waits for the daemon to be idle; the job must have finished "done" with every point measured
+  // once. Returns its run (0 after a failed assertion).
+  std::int64_t FinishedRun(std::int64_t job) {
+    EXPECT_TRUE(controller->WaitIdle(120)) << State();
+    auto j = controller->GetJob(job);
+    EXPECT_TRUE(j.ok() && j->run);
+    if (!j.ok() || !j->run) return 0;
+    EXPECT_EQ(j->state, "done") << j->message;
+    ExpectComplete(*j->run);
+    return *j->run;
+  }
   // Every planned point measured exactly once.
   void ExpectComplete(std::int64_t run) {
     auto info = store->GetRun(run);
@@ -250,12 +261,8 @@ TEST_F(DaemonApi, PauseResumeAndAbortAtArbitraryMomentsLoseNothing) {
     EXPECT_EQ(Post("/api/v1/pause", json::object()).first, 409);
     EXPECT_EQ(Post("/api/v1/resume", json::object()).first, 200);
   }
-  ASSERT_TRUE(controller->WaitIdle(120));
-  auto j = controller->GetJob(job);
-  ASSERT_TRUE(j.ok() && j->run);
-  EXPECT_EQ(j->state, "done");
-  ExpectComplete(*j->run);
-  auto events = store->Events(*j->run);
+  const std::int64_t run = FinishedRun(job);
+  auto events = store->Events(run);
   ASSERT_TRUE(events.ok());
   int pauses = 0;
   for (const auto& e : *events) pauses += e.kind == "paused";
@@ -426,12 +433,8 @@ TEST_F(DaemonSuspender, ACoolerFailureSuspendsTheRunUntilTheSensorIsBackInBand) 
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   EXPECT_EQ(Done(), held) << "measured while suspended";
   inst.sim_camera->FailCooler(false);
-  ASSERT_TRUE(controller->WaitIdle(120)) << State();
-  auto j = controller->GetJob(job);
-  ASSERT_TRUE(j.ok() && j->run);
-  EXPECT_EQ(j->state, "done");
-  ExpectComplete(*j->run);
-  auto events = store->Events(*j->run);
+  const std::int64_t run = FinishedRun(job);
+  auto events = store->Events(run);
   ASSERT_TRUE(events.ok());
   bool suspended = false, cleared = false;
   for (const auto& e : *events) {

@@ -10,7 +10,7 @@ rm -f "$work/port" "$work/mport" "$work/frame.png"
 "$sim" --port 0 --port-file "$work/port" --monitor-port 0 --monitor-port-file "$work/mport" \
   --speed 20 > "$work/sim.log" 2>&1 &
 pid=$!
-trap 'kill $pid 2>/dev/null || true' EXIT
+trap 'kill $pid 2>/dev/null || true; wait $pid 2>/dev/null || true' EXIT  # the port is free after
 for _ in $(seq 200); do [[ -s "$work/port" ]] && break; sleep 0.05; done
 port=$(cat "$work/port") mport=$(cat "$work/mport")
 sed -e "s/^port = 5020/port = $port/" -e "s/^port = 5021/port = $mport/" \

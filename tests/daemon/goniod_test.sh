@@ -13,14 +13,10 @@ rm -rf "${work:?}"/*
 fail() { echo "FAIL: $*" >&2; echo "--- goniod.log" >&2; cat "$work/goniod.log" >&2 || true; exit 1; }
 
 # x5: a point's frames take about a second of real time, so a signal lands mid-exposure.
-"$sim" --speed 5 --port 0 --port-file "$work/port" --monitor-port 0 \
-  --monitor-port-file "$work/mport" > "$work/sim.log" 2>&1 &
-simpid=$!
+source "$src/tests/support/gonio_sim.sh"
 daemon=""
-trap 'kill $simpid 2>/dev/null || true; [[ -n "$daemon" ]] && kill -KILL $daemon 2>/dev/null || true' EXIT
-for _ in $(seq 200); do [[ -s "$work/port" ]] && break; sleep 0.05; done
-sed -e "s/^port = 5020/port = $(cat "$work/port")/" -e "s/^port = 5021/port = $(cat "$work/mport")/" \
-  "$src/config/instrument.toml" > "$work/instrument.toml"
+trap '[[ -n "$daemon" ]] && { kill -KILL $daemon 2>/dev/null || true; }; stop_gonio_sim' EXIT
+start_gonio_sim "$sim" 5 "$work" "$src"
 cat > "$work/plan.toml" <<'PLAN'
 sample = "ground-glass-G1"
 [geometry]

@@ -8,7 +8,7 @@ mkdir -p "$work"
 rm -f "$work/port"
 "$sim" --port 0 --monitor-port 0 --port-file "$work/port" --speed 20 > "$work/sim.log" 2>&1 &
 pid=$!
-trap 'kill $pid 2>/dev/null || true' EXIT
+trap 'kill $pid 2>/dev/null || true; wait $pid 2>/dev/null || true' EXIT  # the port is free after
 for _ in $(seq 100); do [[ -s "$work/port" ]] && break; sleep 0.05; done
 [[ -s "$work/port" ]] || { cat "$work/sim.log"; exit 1; }
 

@@ -10,7 +10,7 @@ rm -f "$work/port"
 "$sim" --no-camera --port 0 --port-file "$work/port" --monitor-port 0 --rtu-link "$work/rtu" \
   --speed 20 > "$work/sim.log" 2>&1 &
 pid=$!
-trap 'kill $pid 2>/dev/null || true' EXIT
+trap 'kill $pid 2>/dev/null || true; wait $pid 2>/dev/null || true' EXIT  # the port is free after
 for _ in $(seq 100); do [[ -s "$work/port" ]] && break; sleep 0.05; done
 port=$(cat "$work/port")
 mb() { timeout 10 mbpoll -m tcp -0 -t 4:int -B -1 -o 2 -p "$port" "$@"; }

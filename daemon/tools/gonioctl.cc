@@ -6,6 +6,8 @@
 //     schedule FILE [--dry-run] [--wait]  queue a schedule's jobs (or list them, with timings)
 //     fit RUN [--model beckmann,ggx]      fit a stored run; the results are stored with it
 //     fits RUN                   the fits stored with a run (a schedule's, or fit's)
+//     plot RUN --out DIR         the run's CSV, gonio-fit's curves and a PNG like Walter 2007's
+//                                Figures 10-11 (measured BTDF*cos with the fits; empirical D)
 //     queue                      jobs: current, queued, finished
 //     cancel JOB | move JOB POS  a queued job
 //     pause | resume | abort     run control
@@ -29,6 +31,7 @@
 #include <sstream>
 #include <thread>
 
+#include <sys/wait.h>
 #include <unistd.h>
 
 namespace {
@@ -80,6 +83,23 @@ int Failed(const Reply& r, const std::string& url) {
   if (r.j.is_object() && r.j.contains("error")) msg = r.j["error"].value("message", r.body);
   std::cerr << "gonioctl: " << r.status << ": " << msg << "\n";
   return r.status >= 500 ? 1 : 2;
+}
+
+// Runs a program with arguments (no shell) and returns its exit status, or -1 if it cannot run.
+int RunProgram(const std::vector<std::string>& argv) {
+  const pid_t pid = ::fork();
+  if (pid < 0) return -1;
+  if (pid == 0) {
+    std::vector<char*> args;
+    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    ::execv(args[0], args.data());
+    std::perror(args[0]);
+    ::_exit(127);
+  }
+  int status = 0;
+  if (::waitpid(pid, &status, 0) < 0) return -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
 std::string Duration(double s) {
@@ -177,6 +197,15 @@ int main(int argc, char** argv) {
   fit->add_option("--model", models, "comma-separated models")->capture_default_str();
   auto* fits = app.add_subcommand("fits", "the fits stored with a run");
   fits->add_option("run", id)->required();
+  std::string fit_tool = GONIO_FIT_TOOL, plot_script = GONIO_PLOT_SCRIPT;
+  auto* plot = app.add_subcommand("plot", "a run's fits and a PNG (gonio-fit, plot_fit.py)");
+  plot->add_option("run", id)->required();
+  plot->add_option("--out", out, "directory for the CSV, the fit's curves and run<N>.png")
+      ->required();
+  plot->add_option("--model", models, "comma-separated models")->capture_default_str();
+  plot->add_option("--gonio-fit", fit_tool, "the fitter program")->capture_default_str();
+  plot->add_option("--plot-script", plot_script, "fitting/tools/plot_fit.py")
+      ->capture_default_str();
   auto* wait = app.add_subcommand("wait", "follow progress until the daemon is idle");
   wait->add_option("--timeout", timeout_s, "give up after S seconds (0: never)");
   try {
@@ -399,6 +428,37 @@ int main(int argc, char** argv) {
       return 1;
     }
     std::cout << "wrote " << out << "\n";
+    return 0;
+  }
+  if (*plot) {
+    Reply r = api.Get("/api/v1/runs/" + std::to_string(id) + "/csv");
+    if (r.status != 200) return Failed(r, url);
+    std::error_code ec;
+    std::filesystem::create_directories(out, ec);
+    if (ec) {
+      std::cerr << "gonioctl: " << out << ": cannot create: " << ec.message() << "\n";
+      return 1;
+    }
+    const std::string stem = out + "/run" + std::to_string(id);
+    {
+      std::ofstream f(stem + ".csv");
+      f << r.body;
+      if (!f) {
+        std::cerr << "gonioctl: " << stem << ".csv: cannot write\n";
+        return 1;
+      }
+    }
+    // A robust loss: the bench's stray-light floor flattens the far tails (docs/fitting.md).
+    if (int rc = RunProgram(
+            {fit_tool, stem + ".csv", "--model", models, "--loss", "huber", "--out", out});
+        rc != 0) {
+      std::cerr << "gonioctl: " << fit_tool << " failed (" << rc << ")\n";
+      return 1;
+    }
+    if (int rc = RunProgram({"/usr/bin/python3", plot_script, out, stem + ".png"}); rc != 0) {
+      std::cerr << "gonioctl: " << plot_script << " failed (" << rc << ")\n";
+      return 1;
+    }
     return 0;
   }
   if (*wait) return wait_idle();

@@ -4,6 +4,7 @@
 #     within seconds, exit 0, the run left paused with every stored point complete;
 #   - restarted, goniod finds the interrupted run and resumes it: every point measured once;
 #   - gonioctl's exit codes: 2 for a refused request (no token, bad plan), 1 when no daemon;
+#   - gonioctl plot draws the finished run (gonio-fit's curves, a PNG);
 #   - the token file is created readable by owner and group only.
 # Usage: goniod_test.sh GONIO_SIM GONIOD GONIOCTL SOURCE_DIR WORKDIR
 set -euo pipefail
@@ -107,6 +108,8 @@ distinct=$(q "select count(distinct idx) from measurements where run_id=1")
 ctl export 1 --out "$work/run1.csv" > /dev/null
 [[ $(grep -vc '^#' "$work/run1.csv") -eq $((total + 1)) ]] || fail "CSV rows"
 ctl --json status | grep -q '"state": "idle"' || fail "not idle after the run"
+ctl plot 1 --out "$work/plot" > "$work/plot.out" 2>&1 || fail "plot: $(cat "$work/plot.out")"
+[[ "$(head -c 4 "$work/plot/run1.png" | tail -c 3)" == PNG ]] || fail "plot: no PNG"
 kill -TERM $daemon
 wait $daemon
 daemon=""

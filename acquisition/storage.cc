@@ -424,10 +424,16 @@ Result<std::vector<FitRecord>> Storage::FitResults(std::int64_t run) {
 }
 
 Status Storage::ExportCsv(std::int64_t run, const std::string& path) {
-  auto rows = Measurements(run);
-  if (!rows.ok()) return rows.error();
   std::ofstream out(path);
   if (!out) return Error{ErrorCode::kIo, "cannot write " + path};
+  if (Status s = ExportCsv(run, out); !s.ok()) return s;
+  if (!out) return Error{ErrorCode::kIo, "writing " + path + " failed"};
+  return OkStatus();
+}
+
+Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
+  auto rows = Measurements(run);
+  if (!rows.ok()) return rows.error();
   out << "# run " << run << ": dark-subtracted, monitor-normalised counts per second\n"
       << "theta_l_deg,theta_v_deg,phi_l_deg,phi_v_deg,value,sigma,exposure_s,frames,"
          "rect_mean_adu,temperature_c,monitor_w,flags\n";
@@ -438,7 +444,6 @@ Status Storage::ExportCsv(std::int64_t run, const std::string& path) {
         << r.m.frames << "," << r.m.rect_mean << "," << r.m.temperature_c << ","
         << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << "\n";
   }
-  if (!out) return Error{ErrorCode::kIo, "writing " + path + " failed"};
   return OkStatus();
 }
 

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -114,6 +115,7 @@ class Storage {
   Result<std::vector<FitRecord>> FitResults(std::int64_t run);
 
   Status ExportCsv(std::int64_t run, const std::string& path);
+  Status ExportCsv(std::int64_t run, std::ostream& out);  // the same CSV to a stream
 
  private:
   Storage() = default;

@@ -337,15 +337,9 @@ void ApiServer::Routes() {
     const std::int64_t id = IdOf(req);
     if (auto info = reader_->GetRun(id); !info.ok())
       return ReplyError(res, 404, info.error().message);
-    const auto tmp =
-        std::filesystem::temp_directory_path() /
-        ("goniod-export-" + std::to_string(::getpid()) + "-" + std::to_string(id) + ".csv");
-    Status s = reader_->ExportCsv(id, tmp.string());
+    std::ostringstream text;
+    Status s = reader_->ExportCsv(id, text);
     if (!s.ok()) return ReplyError(res, s.error());
-    std::ifstream in(tmp);
-    std::stringstream text;
-    text << in.rdbuf();
-    std::filesystem::remove(tmp);
     res.status = 200;
     res.set_content(text.str(), "text/csv");
   });

@@ -286,7 +286,7 @@ void Controller::FinishCurrent(const std::string& state, const std::string& mess
   current_->state = state;
   current_->message = message;
   if (current_->run) {
-    (void)db_.SetRunStatus(*current_->run, state == "done" ? "done" : state);
+    (void)db_.SetRunStatus(*current_->run, state);
     if (!message.empty()) (void)db_.AddEvent(*current_->run, state, message);
   }
   PublishJob(*current_);
@@ -494,28 +494,14 @@ void Controller::OnPoint(const Progress& p) {
 }
 
 Status Controller::CoolDown(const CoolerWait& w) {
-  if (Status s = camera_.SetCooling(true, w.setpoint_c); !s.ok()) return s;
-  const auto start = std::chrono::steady_clock::now();
-  std::optional<std::chrono::steady_clock::time_point> within_since;
-  double t = 0;
-  while (!stop_) {
-    auto temp = camera_.TemperatureC();
-    if (!temp.ok()) return temp.error();
-    t = *temp;
-    const auto now = std::chrono::steady_clock::now();
-    if (std::abs(t - w.setpoint_c) <= w.tolerance_c) {
-      if (!within_since) within_since = now;
-      if (std::chrono::duration<double>(now - *within_since).count() >= w.hold_s) return OkStatus();
-    } else {
-      within_since.reset();
-    }
-    if (std::chrono::duration<double>(now - start).count() > w.timeout_s)
-      return Error{ErrorCode::kTimeout, "the sensor did not hold " + std::to_string(w.setpoint_c) +
-                                            " C within " + std::to_string(w.timeout_s) +
-                                            " s (last " + std::to_string(t) + " C)"};
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  }
-  return Error{ErrorCode::kAborted, "stopped while cooling"};
+  drivers::TemperatureWait t;
+  t.setpoint_c = w.setpoint_c;
+  t.tolerance_c = w.tolerance_c;
+  t.hold_s = w.hold_s;
+  t.timeout_s = w.timeout_s;
+  t.poll_s = 0.1;
+  t.cancel = &stop_;  // abort and shutdown end the wait
+  return camera_.CoolAndWait(t);
 }
 
 void Controller::FitAfterRun(const Job& job) {

@@ -135,9 +135,10 @@ class Controller {
   void SetState(State s, const std::string& reason);  // mu_ held
   void PublishJob(const Job& j);                      // mu_ held
   void FinishCurrent(const std::string& state, const std::string& message);  // mu_ held
-  void SafeState();                      // stages stopped; worker thread
-  Status CoolDown(const CoolerWait& w);  // worker thread, without mu_; stops on stop_
-  void FitAfterRun(const Job& job);      // worker thread, without mu_
+  void SafeState();  // stages stopped; worker thread
+  Status CoolDown(
+      const CoolerWait& w);  // worker thread, without mu_; the driver's wait, cancelled by stop_
+  void FitAfterRun(const Job& job);  // worker thread, without mu_
 
   drivers::StageController& stages_;
   drivers::Camera& camera_;

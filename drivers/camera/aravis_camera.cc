@@ -302,6 +302,8 @@ Status AravisCamera::CoolAndWait(const TemperatureWait& w) {
   const auto t0 = std::chrono::steady_clock::now();
   double within_since = -1, last = *t_start;
   for (;;) {
+    if (w.cancel != nullptr && w.cancel->load())
+      return Error{ErrorCode::kAborted, "cooling cancelled at " + std::to_string(last) + " C"};
     const double elapsed = Seconds(t0);
     // A ramp moves the setpoint from where the sensor started, at the rate asked.
     double sp = w.setpoint_c;

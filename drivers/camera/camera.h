@@ -4,6 +4,7 @@
 // the camera when the last copy of the Frame goes.
 #pragma once
 
+#include <atomic>
 #include <memory>
 #include <string>
 
@@ -62,6 +63,8 @@ struct TemperatureWait {
   double timeout_s = 900;     // real seconds
   double ramp_c_per_min = 0;  // > 0: move the setpoint in steps at this rate (protects the sensor)
   double poll_s = 0.5;
+  // When set, the wait ends with kAborted once this reads true (a daemon stopping or aborting).
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 class Camera {
@@ -81,7 +84,8 @@ class Camera {
   virtual Status SetShutter(bool open) = 0;
   virtual Status SetCooling(bool on, double setpoint_c) = 0;
   // Turns the cooler on toward w.setpoint_c (ramped if asked) and waits until the sensor stays
-  // within tolerance for hold_s. Errors: kTimeout naming the temperature reached.
+  // within tolerance for hold_s. Errors: kTimeout naming the temperature reached; kAborted when
+  // w.cancel was set.
   virtual Status CoolAndWait(const TemperatureWait& w) = 0;
 };
 

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <mutex>
 
 namespace gonio::acquisition {
 
@@ -58,6 +59,18 @@ CREATE TABLE fit_results(
   parameters TEXT NOT NULL, summary TEXT NOT NULL,
   created_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')));
 )sql",
+    // 2: the daemon's jobs, so that its queue and a job's schedule options survive a restart.
+    R"sql(
+CREATE TABLE jobs(
+  id INTEGER PRIMARY KEY, name TEXT NOT NULL, plan TEXT NOT NULL,
+  state TEXT NOT NULL
+    CHECK(state IN ('queued','running','paused','done','aborted','failed','cancelled')),
+  position INTEGER NOT NULL, run_id INTEGER REFERENCES runs(id),
+  message TEXT NOT NULL DEFAULT '', options TEXT NOT NULL DEFAULT '{}',
+  created_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')),
+  updated_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')));
+CREATE INDEX jobs_by_state ON jobs(state, position);
+)sql",
 };
 constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
 static_assert(kMigrationCount == kSchemaVersion);
@@ -79,6 +92,9 @@ class Stmt {
     return sqlite3_bind_text(s_, i, v.c_str(), static_cast<int>(v.size()), SQLITE_TRANSIENT), *this;
   }
   Stmt& Bind(int i, std::optional<double> v) {
+    return v ? Bind(i, *v) : (sqlite3_bind_null(s_, i), *this);
+  }
+  Stmt& Bind(int i, std::optional<std::int64_t> v) {
     return v ? Bind(i, *v) : (sqlite3_bind_null(s_, i), *this);
   }
   int Step() { return sqlite3_step(s_); }
@@ -161,6 +177,7 @@ Status Storage::Migrate() {
 }
 
 Result<std::int64_t> Storage::EnsureSpecimen(const Specimen& sp) {
+  std::lock_guard guard(mu_);
   Stmt ins(db_,
            "INSERT INTO specimens(name, material, thickness_mm, eta) VALUES(?,?,?,?) "
            "ON CONFLICT(name) DO UPDATE SET material=excluded.material, "
@@ -174,6 +191,7 @@ Result<std::int64_t> Storage::EnsureSpecimen(const Specimen& sp) {
 }
 
 Result<std::int64_t> Storage::StoreConfig(const std::string& text) {
+  std::lock_guard guard(mu_);
   const std::string h = Hash(text);
   Stmt ins(db_, "INSERT OR IGNORE INTO instrument_configs(hash, content) VALUES(?,?)");
   ins.Bind(1, h).Bind(2, text);
@@ -187,6 +205,7 @@ Result<std::int64_t> Storage::StoreConfig(const std::string& text) {
 Result<std::int64_t> Storage::CreateRun(std::int64_t specimen_id, std::int64_t config_id,
                                         const std::string& plan_text,
                                         const std::vector<PlannedPoint>& points) {
+  std::lock_guard guard(mu_);
   if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s.error();
   auto fail = [&](const Error& e) {
     (void)Exec("ROLLBACK");
@@ -211,6 +230,7 @@ Result<std::int64_t> Storage::CreateRun(std::int64_t specimen_id, std::int64_t c
 }
 
 Status Storage::SetRunStatus(std::int64_t run, const std::string& status) {
+  std::lock_guard guard(mu_);
   const bool final_state = status == "done" || status == "aborted" || status == "failed";
   Stmt u(db_, final_state ? "UPDATE runs SET status=?, "
                             "finished_at=strftime('%Y-%m-%dT%H:%M:%fZ','now') WHERE id=?"
@@ -221,6 +241,7 @@ Status Storage::SetRunStatus(std::int64_t run, const std::string& status) {
 }
 
 Status Storage::SetMonitorReference(std::int64_t run, double watts) {
+  std::lock_guard guard(mu_);
   Stmt u(db_, "UPDATE runs SET monitor_reference_w=? WHERE id=?");
   u.Bind(1, watts).Bind(2, run);
   if (u.Step() != SQLITE_DONE) return u.Fail("storing the monitor reference");
@@ -228,6 +249,7 @@ Status Storage::SetMonitorReference(std::int64_t run, double watts) {
 }
 
 Status Storage::AddEvent(std::int64_t run, const std::string& kind, const std::string& detail) {
+  std::lock_guard guard(mu_);
   Stmt i(db_, "INSERT INTO run_events(run_id, kind, detail) VALUES(?,?,?)");
   i.Bind(1, run).Bind(2, kind).Bind(3, detail);
   if (i.Step() != SQLITE_DONE) return i.Fail("storing a run event");
@@ -235,6 +257,7 @@ Status Storage::AddEvent(std::int64_t run, const std::string& kind, const std::s
 }
 
 Result<std::vector<RunEvent>> Storage::Events(std::int64_t run) {
+  std::lock_guard guard(mu_);
   Stmt q(db_, "SELECT kind, detail, at FROM run_events WHERE run_id=? ORDER BY rowid");
   q.Bind(1, run);
   std::vector<RunEvent> out;
@@ -245,6 +268,7 @@ Result<std::vector<RunEvent>> Storage::Events(std::int64_t run) {
 }
 
 Result<RunInfo> Storage::GetRun(std::int64_t run) {
+  std::lock_guard guard(mu_);
   Stmt q(db_,
          "SELECT r.id, s.name, r.status, r.monitor_reference_w, r.plan, "
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id), "
@@ -268,6 +292,7 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
 }
 
 Result<std::vector<RunInfo>> Storage::ListRuns() {
+  std::lock_guard guard(mu_);
   std::vector<std::int64_t> ids;
   {
     Stmt q(db_, "SELECT id FROM runs ORDER BY id");
@@ -285,6 +310,7 @@ Result<std::vector<RunInfo>> Storage::ListRuns() {
 }
 
 Result<std::optional<std::int64_t>> Storage::UnfinishedRun() {
+  std::lock_guard guard(mu_);
   Stmt q(db_, "SELECT id FROM runs WHERE status IN ('running','paused') ORDER BY id DESC LIMIT 1");
   const int rc = q.Step();
   if (rc == SQLITE_ROW) return std::optional<std::int64_t>(q.I(0));
@@ -293,6 +319,7 @@ Result<std::optional<std::int64_t>> Storage::UnfinishedRun() {
 }
 
 Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending_only) {
+  std::lock_guard guard(mu_);
   Stmt q(db_, pending_only
                   ? "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
                     "azimuth_deg, status, reason FROM plan_points WHERE run_id=? AND "
@@ -318,6 +345,7 @@ Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending
 }
 
 Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
+  std::lock_guard guard(mu_);
   if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s;
   auto fail = [&](const Error& e) -> Status {
     (void)Exec("ROLLBACK");
@@ -352,6 +380,7 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
 }
 
 Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
+  std::lock_guard guard(mu_);
   Stmt q(db_,
          "SELECT p.idx, p.theta_l_deg, p.theta_v_deg, p.phi_deg, p.sample_deg, p.arm_deg, "
          "p.azimuth_deg, m.sample_read_deg, m.arm_read_deg, m.azimuth_read_deg, m.exposure_s, "
@@ -393,6 +422,7 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
 }
 
 Result<std::int64_t> Storage::StoreDark(const DarkRecord& d) {
+  std::lock_guard guard(mu_);
   Stmt i(db_,
          "INSERT INTO darks(exposure_s, temperature_c, frames, rect_mean, pixel_var, "
          "taken_unix_s) VALUES(?,?,?,?,?,?)");
@@ -405,6 +435,7 @@ Result<std::int64_t> Storage::StoreDark(const DarkRecord& d) {
 Result<std::int64_t> Storage::StoreFitResult(std::int64_t run, const std::string& model,
                                              const std::string& parameters,
                                              const std::string& summary) {
+  std::lock_guard guard(mu_);
   Stmt i(db_, "INSERT INTO fit_results(run_id, model, parameters, summary) VALUES(?,?,?,?)");
   i.Bind(1, run).Bind(2, model).Bind(3, parameters).Bind(4, summary);
   if (i.Step() != SQLITE_DONE) return i.Fail("storing a fit result of run " + std::to_string(run));
@@ -412,6 +443,7 @@ Result<std::int64_t> Storage::StoreFitResult(std::int64_t run, const std::string
 }
 
 Result<std::vector<FitRecord>> Storage::FitResults(std::int64_t run) {
+  std::lock_guard guard(mu_);
   Stmt q(db_,
          "SELECT id, model, parameters, summary, created_at FROM fit_results WHERE run_id=? "
          "ORDER BY id");
@@ -424,6 +456,7 @@ Result<std::vector<FitRecord>> Storage::FitResults(std::int64_t run) {
 }
 
 Status Storage::ExportCsv(std::int64_t run, const std::string& path) {
+  std::lock_guard guard(mu_);
   std::ofstream out(path);
   if (!out) return Error{ErrorCode::kIo, "cannot write " + path};
   if (Status s = ExportCsv(run, out); !s.ok()) return s;
@@ -432,6 +465,7 @@ Status Storage::ExportCsv(std::int64_t run, const std::string& path) {
 }
 
 Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
+  std::lock_guard guard(mu_);
   auto rows = Measurements(run);
   if (!rows.ok()) return rows.error();
   out << "# run " << run << ": dark-subtracted, monitor-normalised counts per second\n"
@@ -445,6 +479,79 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
         << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << "\n";
   }
   return OkStatus();
+}
+
+Result<std::int64_t> Storage::InsertJob(const JobRecord& j) {
+  std::lock_guard guard(mu_);
+  Stmt i(db_,
+         "INSERT INTO jobs(name, plan, state, position, run_id, message, options) "
+         "VALUES(?,?,?,(SELECT COALESCE(MAX(position),0)+1 FROM jobs),?,?,?)");
+  i.Bind(1, j.name).Bind(2, j.plan_text).Bind(3, j.state).Bind(4, j.run).Bind(5, j.message);
+  i.Bind(6, j.options_json);
+  if (i.Step() != SQLITE_DONE) return i.Fail("storing job " + j.name);
+  return static_cast<std::int64_t>(sqlite3_last_insert_rowid(db_));
+}
+
+Status Storage::UpdateJob(const JobRecord& j) {
+  std::lock_guard guard(mu_);
+  Stmt u(db_,
+         "UPDATE jobs SET state=?, run_id=?, message=?, options=?, "
+         "updated_at=strftime('%Y-%m-%dT%H:%M:%fZ','now') WHERE id=?");
+  u.Bind(1, j.state).Bind(2, j.run).Bind(3, j.message).Bind(4, j.options_json).Bind(5, j.id);
+  if (u.Step() != SQLITE_DONE) return u.Fail("updating job " + std::to_string(j.id));
+  if (sqlite3_changes(db_) != 1)
+    return Error{ErrorCode::kNotFound, "no job " + std::to_string(j.id) + " in " + path_};
+  return OkStatus();
+}
+
+Status Storage::SetQueueOrder(const std::vector<std::int64_t>& ids) {
+  std::lock_guard guard(mu_);
+  if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s;
+  std::int64_t pos = 0;
+  for (std::int64_t id : ids) {
+    Stmt u(db_, "UPDATE jobs SET position=? WHERE id=?");
+    u.Bind(1, ++pos).Bind(2, id);
+    if (u.Step() != SQLITE_DONE) {
+      Error e = u.Fail("reordering the job queue");
+      (void)Exec("ROLLBACK");
+      return e;
+    }
+  }
+  return Exec("COMMIT");
+}
+
+Result<std::vector<JobRecord>> Storage::Jobs(int finished_limit) {
+  std::lock_guard guard(mu_);
+  std::vector<JobRecord> out;
+  auto read = [&](Stmt& q) -> Status {
+    int rc = 0;
+    while ((rc = q.Step()) == SQLITE_ROW) {
+      JobRecord j;
+      j.id = q.I(0);
+      j.name = q.T(1);
+      j.plan_text = q.T(2);
+      j.state = q.T(3);
+      j.position = q.I(4);
+      if (!q.Null(5)) j.run = q.I(5);
+      j.message = q.T(6);
+      j.options_json = q.T(7);
+      out.push_back(std::move(j));
+    }
+    if (rc != SQLITE_DONE) return q.Fail("reading the jobs");
+    return OkStatus();
+  };
+  constexpr const char* kCols = "SELECT id, name, plan, state, position, run_id, message, options ";
+  Stmt open(db_, (std::string(kCols) +
+                  "FROM jobs WHERE state IN ('queued','running','paused') ORDER BY position, id")
+                     .c_str());
+  if (Status s = read(open); !s.ok()) return s.error();
+  Stmt done(db_, (std::string(kCols) +
+                  "FROM (SELECT * FROM jobs WHERE state NOT IN ('queued','running','paused') "
+                  "ORDER BY id DESC LIMIT ?) ORDER BY id")
+                     .c_str());
+  done.Bind(1, finished_limit);
+  if (Status s = read(done); !s.ok()) return s.error();
+  return out;
 }
 
 }  // namespace gonio::acquisition

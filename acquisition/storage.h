@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <ostream>
 #include <string>
@@ -19,7 +20,7 @@ struct sqlite3;
 
 namespace gonio::acquisition {
 
-inline constexpr int kSchemaVersion = 1;
+inline constexpr int kSchemaVersion = 2;
 
 struct RunInfo {
   std::int64_t id = 0;
@@ -40,6 +41,18 @@ struct RunEvent {
 struct FitRecord {
   std::int64_t id = 0;
   std::string model, parameters, summary, created_at;
+};
+
+// A job of the daemon's queue (daemon/service/controller.h), stored so that the queue and each
+// job's schedule options survive a restart. options: the daemon's JSON, opaque here.
+struct JobRecord {
+  std::int64_t id = 0;
+  std::string name, plan_text;
+  std::string state;  // queued | running | paused | done | aborted | failed | cancelled
+  std::optional<std::int64_t> run;
+  std::string message;
+  std::string options_json = "{}";
+  std::int64_t position = 0;  // order among queued jobs, ascending
 };
 
 struct DarkRecord {
@@ -117,10 +130,23 @@ class Storage {
   Status ExportCsv(std::int64_t run, const std::string& path);
   Status ExportCsv(std::int64_t run, std::ostream& out);  // the same CSV to a stream
 
+  // The daemon's jobs. InsertJob places the job after every other (its position) and returns
+  // its id; UpdateJob stores state, run, message and options; SetQueueOrder renumbers the given
+  // jobs' positions in that order, in one transaction.
+  Result<std::int64_t> InsertJob(const JobRecord& j);
+  Status UpdateJob(const JobRecord& j);
+  Status SetQueueOrder(const std::vector<std::int64_t>& ids);
+  // Unfinished jobs (queued, running, paused) in queue order, then the newest `finished_limit`
+  // finished ones, oldest first.
+  Result<std::vector<JobRecord>> Jobs(int finished_limit);
+
  private:
   Storage() = default;
   Status Exec(const std::string& sql);
   Status Migrate();
+  // One connection shared by threads (the daemon's worker and its API): each call, and each
+  // call's transaction, runs alone, so one thread's statements never land in another's BEGIN.
+  mutable std::recursive_mutex mu_;
   sqlite3* db_ = nullptr;
   std::string path_;
   int version_ = 0;

@@ -22,6 +22,59 @@ double UnixNow() {
 
 Error NotNow(const std::string& what) { return Error{ErrorCode::kFailedPrecondition, what}; }
 
+constexpr int kFinishedJobsKept = 100;  // listed after a restart
+
+bool Unfinished(const std::string& job_state) {
+  return job_state == "queued" || job_state == "running" || job_state == "paused";
+}
+
+// A job as the database keeps it: the schedule's options as JSON beside the plan.
+acquisition::JobRecord ToRecord(const Job& j) {
+  acquisition::JobRecord r;
+  r.id = j.id;
+  r.name = j.name;
+  r.plan_text = j.plan_text;
+  r.state = j.state;
+  r.run = j.run;
+  r.message = j.message;
+  nlohmann::json o = nlohmann::json::object();
+  if (j.start_at_unix) o["start_at_unix"] = *j.start_at_unix;
+  if (j.cooler)
+    o["cooler"] = {{"setpoint_c", j.cooler->setpoint_c},
+                   {"tolerance_c", j.cooler->tolerance_c},
+                   {"hold_s", j.cooler->hold_s},
+                   {"timeout_s", j.cooler->timeout_s}};
+  if (!j.fit.empty()) o["fit"] = j.fit;
+  if (!j.schedule.empty()) o["schedule"] = j.schedule;
+  r.options_json = o.dump();
+  return r;
+}
+
+Result<Job> FromRecord(const acquisition::JobRecord& r) {
+  Job j;
+  j.id = r.id;
+  j.name = r.name;
+  j.plan_text = r.plan_text;
+  j.state = r.state;
+  j.run = r.run;
+  j.message = r.message;
+  try {
+    const nlohmann::json o = nlohmann::json::parse(r.options_json);
+    if (o.contains("start_at_unix")) j.start_at_unix = o.at("start_at_unix").get<std::int64_t>();
+    if (o.contains("cooler")) {
+      const auto& c = o.at("cooler");
+      j.cooler = CoolerWait{c.at("setpoint_c").get<double>(), c.at("tolerance_c").get<double>(),
+                            c.at("hold_s").get<double>(), c.at("timeout_s").get<double>()};
+    }
+    if (o.contains("fit")) j.fit = o.at("fit").get<std::vector<std::string>>();
+    if (o.contains("schedule")) j.schedule = o.at("schedule").get<std::string>();
+  } catch (const nlohmann::json::exception& e) {
+    return Error{ErrorCode::kInvalidArgument,
+                 "job " + std::to_string(r.id) + ": stored options unreadable: " + e.what()};
+  }
+  return j;
+}
+
 }  // namespace
 
 nlohmann::json ToJson(const Job& j) {
@@ -82,28 +135,78 @@ Controller::~Controller() { Shutdown(); }
 Status Controller::Start(std::optional<bool> resume_interrupted) {
   std::unique_lock lock(mu_);
   if (started_) return NotNow("the controller is already started");
-  if (resume_interrupted) {
-    auto unfinished = db_.UnfinishedRun();
-    if (!unfinished.ok()) return unfinished.error();
-    if (*unfinished) {
-      auto info = db_.GetRun(**unfinished);
-      if (!info.ok()) return info.error();
-      Job j;
-      j.id = next_job_id_++;
-      j.name = "interrupted run " + std::to_string(info->id);
-      j.plan_text = info->plan_text;
-      j.run = info->id;
-      j.state = "paused";
-      current_ = j;
-      (void)db_.SetRunStatus(info->id, "paused");
-      (void)db_.AddEvent(info->id, "daemon", "found interrupted at daemon start");
-      SetState(State::kPaused, "interrupted by a daemon stop; found at start");
-      PublishJob(*current_);
-      if (*resume_interrupted) resume_requested_ = true;
-    }
-  }
+  if (Status st = LoadJobs(resume_interrupted); !st.ok()) return st;
   started_ = true;
   worker_ = std::thread([this] { Worker(); });
+  return OkStatus();
+}
+
+Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
+  auto records = db_.Jobs(kFinishedJobsKept);
+  if (!records.ok()) return records.error();
+  std::vector<Job> interrupted;  // jobs that had started (a run) and did not finish
+  for (const acquisition::JobRecord& r : *records) {
+    auto j = FromRecord(r);
+    if (!j.ok()) return j.error();
+    if (!Unfinished(j->state)) {
+      finished_.push_back(*j);
+    } else if (!j->run) {
+      j->state = "queued";  // it never started
+      queue_.push_back(*j);
+    } else {
+      interrupted.push_back(*j);
+    }
+  }
+  // The run decides: a job whose run finished (the daemon died before the job was stored)
+  // takes the run's end.
+  std::vector<Job> open;
+  for (Job& j : interrupted) {
+    auto info = db_.GetRun(*j.run);
+    if (!info.ok()) return info.error();
+    if (info->status == "done" || info->status == "aborted" || info->status == "failed") {
+      j.state = info->status;
+      j.message = "its run ended before the daemon stopped";
+      SaveJob(j);
+      finished_.push_back(j);
+    } else {
+      open.push_back(j);
+    }
+  }
+  // A run left unfinished by another program (gonio-acquire) or an older daemon has no job.
+  auto unfinished = db_.UnfinishedRun();
+  if (!unfinished.ok()) return unfinished.error();
+  if (*unfinished && std::none_of(open.begin(), open.end(),
+                                  [&](const Job& j) { return *j.run == **unfinished; })) {
+    auto info = db_.GetRun(**unfinished);
+    if (!info.ok()) return info.error();
+    Job j;
+    j.name = "interrupted run " + std::to_string(info->id);
+    j.plan_text = info->plan_text;
+    j.run = info->id;
+    j.state = "paused";
+    auto id = db_.InsertJob(ToRecord(j));
+    if (!id.ok()) return id.error();
+    j.id = *id;
+    open.push_back(j);
+  }
+  for (std::size_t k = 0; k < open.size(); ++k) {
+    Job& j = open[k];
+    j.state = "paused";
+    // Only one job runs at a time, so at most one should be open; any other is left paused.
+    if (!resume_interrupted || k + 1 < open.size()) {
+      j.message = resume_interrupted ? "interrupted; another interrupted job was taken up"
+                                     : "interrupted; not taken up (--on-start ignore)";
+      SaveJob(j);
+      finished_.push_back(j);
+      continue;
+    }
+    current_ = j;
+    (void)db_.SetRunStatus(*j.run, "paused");
+    (void)db_.AddEvent(*j.run, "daemon", "found interrupted at daemon start");
+    SetState(State::kPaused, "interrupted by a daemon stop; found at start");
+    SaveJob(*current_);
+    if (*resume_interrupted) resume_requested_ = true;
+  }
   return OkStatus();
 }
 
@@ -132,11 +235,14 @@ Result<Job> Controller::Submit(Job j) {
   if (!plan.ok()) return plan.error();
   std::lock_guard lock(mu_);
   if (shutdown_) return NotNow("the daemon is shutting down");
-  j.id = next_job_id_++;
   j.state = "queued";
   j.run.reset();
+  j.message.clear();
+  auto id = db_.InsertJob(ToRecord(j));  // stored before it is accepted: a restart keeps it
+  if (!id.ok()) return id.error();
+  j.id = *id;
   queue_.push_back(j);
-  PublishJob(j);
+  events_.Publish("job", ToJson(j));
   cv_.notify_all();
   return j;
 }
@@ -184,7 +290,7 @@ Result<Job> Controller::Cancel(std::int64_t id) {
     j.state = "cancelled";
     j.message = "cancelled before it started";
     finished_.push_back(j);
-    PublishJob(j);
+    SaveJob(j);
     return j;
   }
   if (current_ && current_->id == id)
@@ -208,6 +314,9 @@ Status Controller::Move(std::int64_t id, int position) {
   queue_.erase(it);
   const auto at = std::min<std::size_t>(static_cast<std::size_t>(position), queue_.size());
   queue_.insert(queue_.begin() + static_cast<std::ptrdiff_t>(at), j);
+  std::vector<std::int64_t> order;
+  for (const Job& q : queue_) order.push_back(q.id);
+  if (Status st = db_.SetQueueOrder(order); !st.ok()) return st;
   events_.Publish("queue", {{"moved", id}, {"position", at}});
   return OkStatus();
 }
@@ -279,7 +388,13 @@ void Controller::SetState(State s, const std::string& reason) {
   cv_.notify_all();
 }
 
-void Controller::PublishJob(const Job& j) { events_.Publish("job", ToJson(j)); }
+void Controller::SaveJob(const Job& j) {
+  if (Status st = db_.UpdateJob(ToRecord(j)); !st.ok())
+    events_.Publish(
+        "log", {{"level", "error"},
+                {"message", "job " + std::to_string(j.id) + " not stored: " + st.error().message}});
+  events_.Publish("job", ToJson(j));
+}
 
 void Controller::FinishCurrent(const std::string& state, const std::string& message) {
   if (!current_) return;
@@ -289,7 +404,7 @@ void Controller::FinishCurrent(const std::string& state, const std::string& mess
     (void)db_.SetRunStatus(*current_->run, state);
     if (!message.empty()) (void)db_.AddEvent(*current_->run, state, message);
   }
-  PublishJob(*current_);
+  SaveJob(*current_);
   finished_.push_back(*current_);
   current_.reset();
   progress_.reset();
@@ -360,7 +475,11 @@ void Controller::Worker() {
     cv_.wait(lock);
   }
   // Shutdown with a run in hand: it stays paused in the database for the next start.
-  if (current_ && current_->run) (void)db_.SetRunStatus(*current_->run, "paused");
+  if (current_ && current_->run) {
+    (void)db_.SetRunStatus(*current_->run, "paused");
+    current_->state = "paused";
+    SaveJob(*current_);
+  }
 }
 
 void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
@@ -384,13 +503,14 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
       return;
     }
     job.run = *run;
+    SaveJob(job);  // a restart finds the run through its job
   }
   const std::int64_t run = *job.run;
   stop_ = false;
   stop_reason_ = StopReason::kNone;
-  if (job.cooler) {
+  if (job.cooler && !job.cooled) {
     const CoolerWait w = *job.cooler;
-    job.cooler.reset();  // once: a resumed run does not wait again
+    job.cooled = true;  // once per process: a pause does not wait again, a restart does
     SetState(State::kCooling, "cooling to " + std::to_string(w.setpoint_c) + " C");
     lock.unlock();
     const gonio::Status cooled = CoolDown(w);
@@ -407,7 +527,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     (void)db_.AddEvent(run, "cooled", "sensor held at " + std::to_string(w.setpoint_c) + " C");
   }
   job.state = "running";
-  PublishJob(job);
+  SaveJob(job);
   SetState(State::kRunning, "");
 
   lock.unlock();
@@ -422,7 +542,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     // A device fault the drivers' retries did not clear: the engine left the run paused.
     (void)db_.AddEvent(run, "suspend", "device fault: " + s.error().message);
     current_->state = "paused";
-    PublishJob(*current_);
+    SaveJob(*current_);
     if (why == StopReason::kAbort) {
       FinishCurrent("aborted", "aborted by the operator (after a device fault)");
       SetState(State::kIdle, "");
@@ -460,17 +580,17 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
       SetState(State::kIdle, "");
       break;
     case StopReason::kSuspend:
-      PublishJob(*current_);
+      SaveJob(*current_);
       if (suspended_since_ == 0) suspended_since_ = NowS();
       SetState(State::kSuspended, reason_);
       break;
     case StopReason::kShutdown:
       (void)db_.AddEvent(run, "paused", "daemon shutdown");
-      PublishJob(*current_);
+      SaveJob(*current_);
       break;
     default:
       (void)db_.AddEvent(run, "paused", "paused by the operator");
-      PublishJob(*current_);
+      SaveJob(*current_);
       SetState(State::kPaused, "paused by the operator");
       break;
   }

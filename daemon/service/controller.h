@@ -15,7 +15,9 @@
 //   fault      a suspension that did not clear within its limit; resume retries, abort ends it
 //
 // Every point is committed by the engine before a pause, suspension, abort or shutdown takes
-// effect, so nothing measured is lost and nothing is measured twice.
+// effect, so nothing measured is lost and nothing is measured twice. Every job is stored in the
+// database (Storage's jobs) as it changes, so a restart finds the queue in its order, and the
+// interrupted job with its schedule options (a cooler wait is done again; the fits still follow).
 #pragma once
 
 #include <atomic>
@@ -51,6 +53,7 @@ struct Job {
   std::optional<CoolerWait> cooler;
   std::vector<std::string> fit;
   std::string schedule;  // the schedule's name, if it came from one
+  bool cooled = false;   // this process has done the cooler wait (a restart waits again)
 };
 
 // The job, and a run's progress, as the API and the event stream show them.
@@ -93,9 +96,10 @@ class Controller {
   Controller(const Controller&) = delete;
   Controller& operator=(const Controller&) = delete;
 
-  // Starts the worker. With `resume_interrupted`, a run left running or paused in the database
-  // (the daemon was killed or stopped) is taken up again as a job: resumed at once (true) or
-  // held paused for the operator (false).
+  // Loads the stored jobs (the queue in its order, recent finished ones) and starts the worker.
+  // With `resume_interrupted`, the job whose run was left unfinished in the database (the daemon
+  // was killed or stopped), or a run left by another program, is taken up again: resumed at once
+  // (true) or held paused for the operator (false). Without, it is listed as paused and left.
   Status Start(std::optional<bool> resume_interrupted = std::nullopt);
   // Stops after the current point is stored, leaves the run paused in the database (a restart
   // resumes it), stops the stages, and joins the worker. Idempotent.
@@ -133,7 +137,8 @@ class Controller {
   void OnPoint(const acquisition::Progress& p);       // worker thread, from the engine
   std::optional<std::string> SuspendCondition();      // worker thread; the reason, when tripped
   void SetState(State s, const std::string& reason);  // mu_ held
-  void PublishJob(const Job& j);                      // mu_ held
+  void SaveJob(const Job& j);                         // stores and publishes it; mu_ held
+  Status LoadJobs(std::optional<bool> resume_interrupted);  // mu_ held, before the worker
   void FinishCurrent(const std::string& state, const std::string& message);  // mu_ held
   void SafeState();  // stages stopped; worker thread
   Status CoolDown(
@@ -156,7 +161,6 @@ class Controller {
   std::optional<Job> current_;
   std::vector<Job> finished_;
   std::optional<acquisition::Progress> progress_;
-  std::int64_t next_job_id_ = 1;
   bool resume_requested_ = false;
   bool shutdown_ = false;
   double suspended_since_ = 0;

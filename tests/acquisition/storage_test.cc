@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <thread>
 
 #include "acquisition/storage.h"
 #include "fitting/samples_csv.h"
@@ -77,6 +78,124 @@ TEST_F(StorageTest, NewDatabaseIsMigratedToTheCurrentVersionAndANewerOneIsRefuse
   ASSERT_FALSE(newer.ok());
   EXPECT_NE(newer.error().message.find("schema version 99, newer than"), std::string::npos)
       << newer.error().message;
+}
+
+// Version 1 had no jobs table: a database written by that version keeps its runs and gains it.
+TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
+  std::int64_t run = 0;
+  {
+    auto s = Storage::Open(path);
+    ASSERT_TRUE(s.ok());
+    run = NewRun(**s, 3);
+    ASSERT_TRUE((*s)->StoreMeasurement(run, M(1, 42)).ok());
+  }
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(db, "DROP INDEX jobs_by_state; DROP TABLE jobs; PRAGMA user_version=1",
+                         nullptr, nullptr, nullptr),
+            SQLITE_OK);
+  sqlite3_close(db);
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_EQ((*s)->schema_version(), 2);
+  auto rows = (*s)->Measurements(run);
+  ASSERT_TRUE(rows.ok());
+  ASSERT_EQ(rows->size(), 1u);
+  EXPECT_EQ((*rows)[0].m.value, 42);
+  JobRecord j;
+  j.name = "after.toml";
+  j.plan_text = "sample = \"G1\"\n";
+  j.state = "queued";
+  EXPECT_TRUE((*s)->InsertJob(j).ok());
+}
+
+TEST_F(StorageTest, JobsKeepTheirQueueOrderStateAndOptions) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  std::vector<std::int64_t> ids;
+  for (const char* name : {"a", "b", "c"}) {
+    JobRecord j;
+    j.name = name;
+    j.plan_text = std::string("plan ") + name;
+    j.state = "queued";
+    j.options_json = std::string(R"({"fit":[")") + name + R"("]})";
+    auto id = (*s)->InsertJob(j);
+    ASSERT_TRUE(id.ok()) << id.error().message;
+    ids.push_back(*id);
+  }
+  auto names = [&](int finished) {
+    std::string out;
+    auto jobs = (*s)->Jobs(finished);
+    EXPECT_TRUE(jobs.ok());
+    for (const JobRecord& j : *jobs) out += j.name + ":" + j.state + " ";
+    return out;
+  };
+  EXPECT_EQ(names(10), "a:queued b:queued c:queued ");
+  ASSERT_TRUE((*s)->SetQueueOrder({ids[2], ids[0], ids[1]}).ok());
+  EXPECT_EQ(names(10), "c:queued a:queued b:queued ");
+  const std::int64_t run = NewRun(**s, 2);
+  JobRecord done;
+  done.id = ids[0];
+  done.state = "done";
+  done.run = run;
+  done.message = "fine";
+  done.options_json = R"({"fit":["ggx"]})";
+  ASSERT_TRUE((*s)->UpdateJob(done).ok());
+  EXPECT_EQ(names(10), "c:queued b:queued a:done ");  // finished ones after the queue
+  EXPECT_EQ(names(0), "c:queued b:queued ");
+  auto jobs = (*s)->Jobs(10);
+  ASSERT_TRUE(jobs.ok());
+  const JobRecord& a = jobs->back();
+  EXPECT_EQ(a.plan_text, "plan a");
+  EXPECT_EQ(a.run, run);
+  EXPECT_EQ(a.message, "fine");
+  EXPECT_EQ(a.options_json, R"({"fit":["ggx"]})");
+  done.id = 9999;
+  const Status missing = (*s)->UpdateJob(done);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_EQ(missing.error().code, ErrorCode::kNotFound);
+  done.id = ids[1];
+  done.state = "sleeping";  // not a job state: refused by the schema, nothing changed
+  EXPECT_FALSE((*s)->UpdateJob(done).ok());
+  EXPECT_EQ(names(0), "c:queued b:queued ");
+}
+
+// The daemon's worker stores points while its API threads store jobs, on one connection: each
+// call's transaction must run alone (a second BEGIN inside the first fails).
+TEST_F(StorageTest, ThreadsSharingTheConnectionDoNotShareATransaction) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  constexpr int kPoints = 200;
+  const std::int64_t run = NewRun(**s, kPoints);
+  std::vector<std::int64_t> ids;
+  int point_failures = 0, job_failures = 0;
+  std::thread points([&] {
+    for (int k = 0; k < kPoints; ++k)
+      if (!(*s)->StoreMeasurement(run, M(k, k)).ok()) ++point_failures;
+  });
+  for (int k = 0; k < kPoints; ++k) {
+    JobRecord j;
+    j.name = "j" + std::to_string(k);
+    j.plan_text = "p";
+    j.state = "queued";
+    auto id = (*s)->InsertJob(j);
+    if (!id.ok()) {
+      ++job_failures;
+      continue;
+    }
+    ids.insert(ids.begin(), *id);
+    if (!(*s)->SetQueueOrder(ids).ok()) ++job_failures;
+  }
+  points.join();
+  EXPECT_EQ(point_failures, 0);
+  EXPECT_EQ(job_failures, 0);
+  auto rows = (*s)->Measurements(run);
+  ASSERT_TRUE(rows.ok());
+  EXPECT_EQ(static_cast<int>(rows->size()), kPoints);
+  auto jobs = (*s)->Jobs(0);
+  ASSERT_TRUE(jobs.ok());
+  ASSERT_EQ(jobs->size(), static_cast<std::size_t>(kPoints));
+  EXPECT_EQ(jobs->front().name, "j" + std::to_string(kPoints - 1));  // the last put first
 }
 
 TEST_F(StorageTest, PointsAreStoredOnceAndTheRestStayPending) {

@@ -55,6 +55,10 @@ class DaemonApi : public ::testing::Test {
     auto db = acquisition::Storage::Open(db_path);
     ASSERT_TRUE(db.ok());
     store = std::move(*db);
+    StartDaemon(std::nullopt);
+  }
+  // A controller and its API on the same database (a daemon start).
+  void StartDaemon(std::optional<bool> resume_interrupted) {
     acquisition::PlanContext ctx;
     ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51}};
     ctx.axes = inst.axes;
@@ -65,13 +69,21 @@ class DaemonApi : public ::testing::Test {
     co.config_text = "# test";
     controller =
         std::make_unique<Controller>(*inst.stages, *inst.camera, inst.meter.get(), *store, ctx, co);
-    ASSERT_TRUE(controller->Start().ok());
+    const Status started = controller->Start(resume_interrupted);
+    ASSERT_TRUE(started.ok()) << started.error().message;
     auto api = ApiServer::Start(
         *controller, {.host = "127.0.0.1", .port = 0, .token = kToken, .db_path = db_path});
     ASSERT_TRUE(api.ok()) << api.error().message;
     server = std::move(*api);
     client = std::make_unique<httplib::Client>("127.0.0.1", server->port());
     client->set_read_timeout(30);
+  }
+  // goniod stopped (SIGTERM: after the current point) and started again on the same database.
+  void RestartDaemon(std::optional<bool> resume_interrupted) {
+    server.reset();
+    controller->Shutdown();
+    controller.reset();
+    StartDaemon(resume_interrupted);
   }
   void TearDown() override {
     if (controller) controller->Shutdown();
@@ -400,6 +412,94 @@ TEST_F(DaemonApi, AScheduleWaitsForItsStartTimeCoolsRunsItsRepeatsAndFitsEachRun
   EXPECT_EQ(Get("/api/v1/runs/" + std::to_string(*first_run) + "/fits").second["fits"].size(), 2u);
   EXPECT_EQ(Post(fit_path, json{{"models", {"nope"}}}).first, 400);
   EXPECT_EQ(Post("/api/v1/runs/999/fit", json::object()).first, 404);
+}
+
+// The queue is stored: a restart finds the queued jobs in their order, with their ids and their
+// schedule options, and the cancelled one still cancelled.
+TEST_F(DaemonApi, TheQueueSurvivesARestartInItsOrderWithItsOptions) {
+  const std::int64_t later = std::time(nullptr) + 3600;  // nothing starts during the test
+  char when[32];
+  std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%S", std::localtime(&later));
+  const std::string at = std::string("start_at = \"") + when + "\"\n";
+  const std::string schedule = "[[job]]\nplan = \"quick.toml\"\nrepeat = 2\n" + at +
+                               "fit = [\"beckmann\", \"ggx\"]\n[job.cooler]\nsetpoint_c = -12\n" +
+                               "[[job]]\nplan = \"quick.toml\"\n" + at;
+  const auto [st, queued] = Post(
+      "/api/v1/schedules",
+      json{{"name", "night.toml"}, {"schedule", schedule}, {"plans", {{"quick.toml", kPlan}}}});
+  ASSERT_EQ(st, 201) << queued.dump();
+  ASSERT_EQ(queued["jobs"].size(), 3u);
+  const std::int64_t a1 = queued["jobs"][0]["id"], a2 = queued["jobs"][1]["id"],
+                     b = queued["jobs"][2]["id"];
+  EXPECT_EQ(Post("/api/v1/jobs/" + std::to_string(b) + "/position", json{{"position", 0}}).first,
+            200);
+  auto cancelled = client->Delete("/api/v1/jobs/" + std::to_string(a2), Auth());
+  ASSERT_TRUE(cancelled);
+  ASSERT_EQ(cancelled->status, 200) << cancelled->body;
+  const json before = Get("/api/v1/jobs").second;
+
+  RestartDaemon(true);
+  const json after = Get("/api/v1/jobs").second;
+  EXPECT_EQ(after, before);  // the same jobs, ids, order, states and options
+  const auto jobs = controller->Jobs();
+  ASSERT_EQ(jobs.size(), 3u);
+  EXPECT_EQ(jobs[0].id, b);
+  EXPECT_EQ(jobs[1].id, a1);
+  EXPECT_EQ(jobs[0].state, "queued");
+  EXPECT_EQ(jobs[1].state, "queued");
+  ASSERT_TRUE(jobs[1].cooler.has_value());
+  EXPECT_EQ(jobs[1].cooler->setpoint_c, -12);
+  EXPECT_EQ(jobs[1].fit, (std::vector<std::string>{"beckmann", "ggx"}));
+  EXPECT_EQ(jobs[1].start_at_unix, later);
+  EXPECT_EQ(jobs[1].schedule, "night.toml");
+  EXPECT_EQ(jobs[2].id, a2);
+  EXPECT_EQ(jobs[2].state, "cancelled");
+  EXPECT_EQ(State(), "idle");
+  // A job submitted now gets a new id, and cancelling works on the reloaded queue.
+  const std::int64_t c = SubmitPlan();
+  EXPECT_GT(c, b);
+  ASSERT_TRUE(controller->Cancel(c).ok());
+  ASSERT_TRUE(controller->Cancel(a1).ok());
+  ASSERT_TRUE(controller->Cancel(b).ok());
+  EXPECT_TRUE(controller->WaitIdle(5));
+}
+
+// A job interrupted by a daemon stop keeps its schedule's options: held paused at start (the
+// operator's choice), resumed by the operator, it waits for the cooler again (the sensor may have
+// drifted while the daemon was down), finishes every point once, and is fitted as scheduled.
+TEST_F(DaemonApi, AnInterruptedScheduledJobKeepsItsCoolerWaitAndFitsAfterARestart) {
+  const std::string schedule =
+      "[[job]]\nplan = \"quick.toml\"\nfit = [\"beckmann\"]\n"
+      "[job.cooler]\nsetpoint_c = -10\nhold_s = 0.3\ntimeout_s = 60\n";
+  const auto [st, queued] = Post(
+      "/api/v1/schedules",
+      json{{"name", "night.toml"}, {"schedule", schedule}, {"plans", {{"quick.toml", kPlan}}}});
+  ASSERT_EQ(st, 201) << queued.dump();
+  const std::int64_t job = queued["jobs"][0]["id"];
+  ASSERT_TRUE(WaitFor([&] { return Done() >= 3; }, 60)) << State();
+
+  RestartDaemon(false);  // --on-start pause
+  EXPECT_EQ(State(), "paused");
+  auto held = controller->GetJob(job);
+  ASSERT_TRUE(held.ok());
+  EXPECT_EQ(held->state, "paused");
+  ASSERT_TRUE(held->run.has_value());
+  EXPECT_EQ(held->fit, std::vector<std::string>{"beckmann"});
+  const std::int64_t run = *held->run;
+  const int stored = static_cast<int>(store->Measurements(run)->size());
+  EXPECT_GE(stored, 3);
+  EXPECT_LT(stored, 10);
+  ASSERT_EQ(Post("/api/v1/resume", json::object()).first, 200);
+  EXPECT_EQ(FinishedRun(job), run);  // the same run, every point once
+  auto events = store->Events(run);
+  ASSERT_TRUE(events.ok());
+  int cooled = 0;
+  for (const auto& e : *events) cooled += e.kind == "cooled";
+  EXPECT_EQ(cooled, 2) << "one cooler wait before the run and one after the restart";
+  auto fits = store->FitResults(run);
+  ASSERT_TRUE(fits.ok());
+  ASSERT_EQ(fits->size(), 1u);
+  EXPECT_EQ(fits->front().model, "beckmann");
 }
 
 // A suspender on the sensor temperature (setpoint -10 C +- 2 C). The cooler fails during the run:

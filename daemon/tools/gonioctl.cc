@@ -86,6 +86,13 @@ int Failed(const Reply& r, const std::string& url) {
 }
 
 // Runs a program with arguments (no shell) and returns its exit status, or -1 if it cannot run.
+// The first candidate that exists, else the last (whose absence the caller reports).
+std::string Companion(const std::vector<std::filesystem::path>& candidates) {
+  for (const auto& c : candidates)
+    if (std::filesystem::is_regular_file(c)) return std::filesystem::weakly_canonical(c).string();
+  return candidates.back().string();
+}
+
 int RunProgram(const std::vector<std::string>& argv) {
   const pid_t pid = ::fork();
   if (pid < 0) return -1;
@@ -197,15 +204,17 @@ int main(int argc, char** argv) {
   fit->add_option("--model", models, "comma-separated models")->capture_default_str();
   auto* fits = app.add_subcommand("fits", "the fits stored with a run");
   fits->add_option("run", id)->required();
-  std::string fit_tool = GONIO_FIT_TOOL, plot_script = GONIO_PLOT_SCRIPT;
+  std::string fit_tool, plot_script;  // found beside gonioctl (installed) or in the build
   auto* plot = app.add_subcommand("plot", "a run's fits and a PNG (gonio-fit, plot_fit.py)");
   plot->add_option("run", id)->required();
   plot->add_option("--out", out, "directory for the CSV, the fit's curves and run<N>.png")
       ->required();
   plot->add_option("--model", models, "comma-separated models")->capture_default_str();
-  plot->add_option("--gonio-fit", fit_tool, "the fitter program")->capture_default_str();
-  plot->add_option("--plot-script", plot_script, "fitting/tools/plot_fit.py")
-      ->capture_default_str();
+  plot->add_option("--gonio-fit", fit_tool,
+                   "the fitter program (default: beside gonioctl when installed, else the build's)");
+  plot->add_option("--plot-script", plot_script,
+                   "fitting/tools/plot_fit.py (default: <prefix>/share/gonio/plot_fit.py when "
+                   "installed, else the source tree's)");
   auto* wait = app.add_subcommand("wait", "follow progress until the daemon is idle");
   wait->add_option("--timeout", timeout_s, "give up after S seconds (0: never)");
   try {
@@ -431,6 +440,21 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (*plot) {
+    // An installed gonioctl uses its installed companions; one in the build tree, the build's.
+    const std::filesystem::path bin = std::filesystem::read_symlink("/proc/self/exe").parent_path();
+    if (fit_tool.empty())
+      fit_tool = Companion({bin / "gonio-fit", GONIO_FIT_TOOL});
+    if (plot_script.empty())
+      plot_script = Companion({bin / "../share/gonio/plot_fit.py", GONIO_PLOT_SCRIPT});
+    for (const auto& [what, path] : {std::pair<std::string, std::string>{"--gonio-fit", fit_tool},
+                                     {"--plot-script", plot_script}}) {
+      if (!std::filesystem::is_regular_file(path)) {
+        std::cerr << "gonioctl: " << path << ": not found; name it with " << what << "\n";
+        return 2;
+      }
+    }
+    std::cerr << "gonioctl: fitting with " << fit_tool << ", plotting with " << plot_script
+              << "\n";
     Reply r = api.Get("/api/v1/runs/" + std::to_string(id) + "/csv");
     if (r.status != 200) return Failed(r, url);
     std::error_code ec;

@@ -2,13 +2,15 @@
 # goniod's life cycle against gonio-sim, through gonioctl (issue #7):
 #   - a plan submitted with gonioctl runs; SIGTERM in the middle of its exposures stops goniod
 #     within seconds, exit 0, the run left paused with every stored point complete;
-#   - restarted, goniod finds the interrupted run and resumes it: every point measured once;
+#   - restarted, goniod finds the interrupted run and resumes it: every point measured once; the
+#     job queued behind it was stored and runs after it;
 #   - gonioctl's exit codes: 2 for a refused request (no token, bad plan), 1 when no daemon;
-#   - gonioctl plot draws the finished run (gonio-fit's curves, a PNG);
+#   - gonioctl plot draws the finished run (gonio-fit's curves, a PNG), from the build tree and
+#     from an install prefix (cmake --install), each with its own gonio-fit and plot script;
 #   - the token file is created readable by owner and group only.
-# Usage: goniod_test.sh GONIO_SIM GONIOD GONIOCTL SOURCE_DIR WORKDIR
+# Usage: goniod_test.sh GONIO_SIM GONIOD GONIOCTL SOURCE_DIR WORKDIR BUILD_DIR
 set -euo pipefail
-sim=$1 goniod=$2 ctl=$3 src=$4 work=$5
+sim=$1 goniod=$2 ctl=$3 src=$4 work=$5 build=$6
 mkdir -p "$work"
 rm -rf "${work:?}"/*
 fail() { echo "FAIL: $*" >&2; echo "--- goniod.log" >&2; cat "$work/goniod.log" >&2 || true; exit 1; }
@@ -67,7 +69,8 @@ set -e
 grep -q "bad.toml:[0-9]*:" "$work/bad.out" || fail "no file:line in: $(cat "$work/bad.out")"
 [[ $rc_down -eq 1 ]] || fail "an unreachable daemon exited $rc_down"
 
-# A run, stopped by SIGTERM after a few points, in the middle of its frames.
+# A run, stopped by SIGTERM after a few points, in the middle of its frames; a second job waits.
+ctl submit "$work/plan.toml" > /dev/null
 ctl submit "$work/plan.toml" > /dev/null
 for _ in $(seq 600); do
   done_now=$(q "select count(*) from measurements" 2>/dev/null || echo 0)
@@ -94,7 +97,8 @@ total=$(q "select count(*) from plan_points where run_id=1")
 [[ "$stored" == "$marked" ]] || fail "$stored measurements but $marked points marked done"
 [[ "$stored" -lt "$total" ]] || fail "the run finished before the signal; nothing tested"
 q "pragma integrity_check" | grep -qx ok || fail "database integrity"
-echo "SIGTERM after $stored/$total points: stopped in $ms ms, run paused"
+[[ "$(q "select state from jobs where id=2")" == queued ]] || fail "the second job was not kept"
+echo "SIGTERM after $stored/$total points: stopped in $ms ms, run paused, one job queued"
 
 # Restarted, goniod resumes the interrupted run by itself.
 start_daemon
@@ -105,11 +109,28 @@ stored=$(q "select count(*) from measurements where run_id=1")
 distinct=$(q "select count(distinct idx) from measurements where run_id=1")
 [[ "$stored" == "$total" && "$distinct" == "$total" ]] ||
   fail "$stored measurements ($distinct distinct) of $total points"
+[[ "$(q "select status from runs where id=2")" == done ]] || fail "the queued job did not run"
+[[ "$(q "select count(distinct idx) from measurements where run_id=2")" == "$total" ]] ||
+  fail "the queued job's run is incomplete"
 ctl export 1 --out "$work/run1.csv" > /dev/null
 [[ $(grep -vc '^#' "$work/run1.csv") -eq $((total + 1)) ]] || fail "CSV rows"
 ctl --json status | grep -q '"state": "idle"' || fail "not idle after the run"
 ctl plot 1 --out "$work/plot" > "$work/plot.out" 2>&1 || fail "plot: $(cat "$work/plot.out")"
 [[ "$(head -c 4 "$work/plot/run1.png" | tail -c 3)" == PNG ]] || fail "plot: no PNG"
+grep -q "fitting with $build/" "$work/plot.out" || fail "plot did not use the build's fitter"
+# Installed, gonioctl finds the installed fitter and plot script, not the build's.
+cmake --install "$build" --prefix "$work/prefix" > "$work/install.out" 2>&1 ||
+  fail "install: $(cat "$work/install.out")"
+"$work/prefix/bin/gonioctl" --url "$url" plot 1 --out "$work/plot2" > "$work/plot2.out" 2>&1 ||
+  fail "installed plot: $(cat "$work/plot2.out")"
+grep -q "fitting with $work/prefix/bin/gonio-fit, plotting with $work/prefix/share/gonio/plot_fit.py" \
+  "$work/plot2.out" || fail "installed plot used: $(cat "$work/plot2.out")"
+[[ "$(head -c 4 "$work/plot2/run1.png" | tail -c 3)" == PNG ]] || fail "installed plot: no PNG"
+set +e
+ctl plot 1 --out "$work/plot3" --gonio-fit "$work/nowhere" > "$work/plot3.out" 2>&1; rc=$?
+set -e
+[[ $rc -eq 2 ]] && grep -q "nowhere: not found" "$work/plot3.out" ||
+  fail "a missing fitter: exit $rc, $(cat "$work/plot3.out")"
 kill -TERM $daemon
 wait $daemon
 daemon=""

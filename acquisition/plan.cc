@@ -239,8 +239,21 @@ std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& cont
   return out;
 }
 
+std::optional<ExposureHistory::Entry> ExposureHistory::Near(const PlannedPoint& p) const {
+  std::optional<Entry> best;
+  for (const Entry& e : entries) {
+    if (std::abs(e.theta_l_deg - p.theta_l_deg) > 1 || std::abs(e.phi_deg - p.phi_deg) > 1)
+      continue;
+    if (!best ||
+        std::abs(e.theta_v_deg - p.theta_v_deg) < std::abs(best->theta_v_deg - p.theta_v_deg))
+      best = e;
+  }
+  return best;
+}
+
 double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
-                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s) {
+                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s,
+                       const ExposureHistory* history) {
   // A trapezoid per axis: distance / speed + speed / acceleration; axes move together.
   auto move_s = [&](const std::string& name, double from, double to) {
     const drivers::AxisSettings* a = Axis(axes, name);
@@ -250,12 +263,26 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
   };
   double total = 0;
   StageTargets at{0, 180, 0};
+  std::vector<double> darks_taken;  // exposures with a dark set in the library
   for (const PlannedPoint& p : points) {
     if (p.skipped) continue;
     total += std::max({move_s("sample", at.sample_deg, p.stage.sample_deg),
                        move_s("arm", at.arm_deg, p.stage.arm_deg),
                        move_s("azimuth", at.azimuth_deg, p.stage.azimuth_deg)});
-    total += (plan.exposure.frames + 1) * typical_exposure_s;  // +1: the ranging frame
+    const auto seen = history ? history->Near(p) : std::nullopt;
+    if (!seen) {
+      total += (plan.exposure.frames + 1) * typical_exposure_s;  // +1: the ranging frame
+    } else {
+      // The last ranging try is the first averaged frame; earlier tries priced at its exposure.
+      total += (plan.exposure.frames + seen->ranging_tries - 1) * seen->exposure_s;
+      const bool have_dark = std::any_of(darks_taken.begin(), darks_taken.end(), [&](double e) {
+        return std::abs(e - seen->exposure_s) <= 1e-3 * e;
+      });
+      if (!have_dark) {
+        total += plan.darks.frames * seen->exposure_s;
+        darks_taken.push_back(seen->exposure_s);
+      }
+    }
     at = p.stage;
   }
   return total;

@@ -6,6 +6,8 @@
 // kept with the reason they are skipped.
 #pragma once
 
+#include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -84,9 +86,28 @@ Result<Plan> LoadPlanText(std::string_view text, const std::string& name,
 // Unreachable or occluded geometries come back with skipped = true and a reason.
 std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& context);
 
-// Seconds the run should take: moves along the order at the axes' speeds plus, per point,
-// `frames` exposures of `typical_exposure_s` and the darks (an estimate before anything moves).
+// What an earlier run of the same specimen measured: each point's final exposure and how many
+// ranging tries it took, to price a new plan's points (Storage::LatestExposures reads them).
+struct ExposureHistory {
+  struct Entry {
+    double theta_l_deg = 0, theta_v_deg = 0, phi_deg = 0;
+    double exposure_s = 0;
+    int ranging_tries = 0;
+  };
+  std::int64_t run = 0;  // the run they come from
+  std::vector<Entry> entries;
+  // The measured geometry nearest in view angle at the same incidence and azimuth (within
+  // 1 deg); nullopt where the earlier run did not measure that incidence.
+  std::optional<Entry> Near(const PlannedPoint& p) const;
+};
+
+// Seconds of bench time the run should take: moves along the order at the axes' speeds plus, per
+// point, its frames and ranging tries. Without history (or where it has no nearby point) every
+// point is priced at `typical_exposure_s` with one ranging frame. With history, each point takes
+// the exposure and ranging tries of the nearest earlier point, plus a dark set at each exposure
+// not seen before in the run (the dark library is reused while fresh). Readout is not counted.
 double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
-                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s);
+                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s,
+                       const ExposureHistory* history = nullptr);
 
 }  // namespace gonio::acquisition

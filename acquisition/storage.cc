@@ -421,6 +421,25 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
   return out;
 }
 
+Result<std::optional<ExposureHistory>> Storage::LatestExposures(const std::string& specimen) {
+  std::lock_guard guard(mu_);
+  Stmt q(db_,
+         "SELECT r.id FROM runs r JOIN specimens s ON s.id=r.specimen_id "
+         "WHERE s.name=? AND r.status='done' ORDER BY r.id DESC LIMIT 1");
+  q.Bind(1, specimen);
+  const int rc = q.Step();
+  if (rc == SQLITE_DONE) return std::optional<ExposureHistory>();
+  if (rc != SQLITE_ROW) return q.Fail("looking for an earlier run of " + specimen);
+  ExposureHistory h;
+  h.run = q.I(0);
+  auto rows = Measurements(h.run);
+  if (!rows.ok()) return rows.error();
+  for (const MeasurementRow& r : *rows)
+    h.entries.push_back({r.point.theta_l_deg, r.point.theta_v_deg, r.point.phi_deg, r.m.exposure_s,
+                         r.m.ranging_tries});
+  return std::optional<ExposureHistory>(std::move(h));
+}
+
 Result<std::int64_t> Storage::StoreDark(const DarkRecord& d) {
   std::lock_guard guard(mu_);
   Stmt i(db_,

@@ -117,6 +117,9 @@ class Storage {
   // Stores the measurement and marks its point done, atomically.
   Status StoreMeasurement(std::int64_t run, const Measurement& m);
   Result<std::vector<MeasurementRow>> Measurements(std::int64_t run);
+  // The exposures of the newest finished ("done") run of this specimen, to estimate a new plan's
+  // time (EstimateSeconds); nullopt if the specimen has none.
+  Result<std::optional<ExposureHistory>> LatestExposures(const std::string& specimen);
 
   Result<std::int64_t> StoreDark(const DarkRecord& d);
 

@@ -245,7 +245,7 @@ void ApiServer::Routes() {
 
   // A schedule with its plans' texts: validated against the instrument, then queued (or, with
   // "dry_run", only described: what would run and how long it would take).
-  srv.Post("/api/v1/schedules", [&c](const httplib::Request& req, httplib::Response& res) {
+  srv.Post("/api/v1/schedules", [this, &c](const httplib::Request& req, httplib::Response& res) {
     auto body = Body(req, res);
     if (!body) return;
     if (!body->contains("schedule") || !(*body)["schedule"].is_string())
@@ -261,13 +261,25 @@ void ApiServer::Routes() {
       }
     }
     const std::string name = body->value("name", std::string("schedule"));
-    auto schedule = ParseSchedule((*body)["schedule"].get<std::string>(), name, plans, c.context());
+    // Estimates price each point at what the newest finished run of the specimen needed.
+    auto history = [this](const std::string& specimen) {
+      std::lock_guard lock(reader_mu_);
+      auto h = reader_->LatestExposures(specimen);
+      return h.ok() ? *h : std::nullopt;
+    };
+    auto schedule =
+        ParseSchedule((*body)["schedule"].get<std::string>(), name, plans, c.context(), history);
     if (!schedule.ok()) return ReplyError(res, schedule.error());
     if (body->value("dry_run", false)) {
       json steps = json::array();
       for (const ScheduleEntry& e : schedule->jobs) {
-        json step{{"plan", e.plan_name}, {"line", e.line},       {"repeat", e.repeat},
-                  {"points", e.points},  {"skipped", e.skipped}, {"estimate_s", e.estimate_s}};
+        json step{{"plan", e.plan_name},
+                  {"line", e.line},
+                  {"repeat", e.repeat},
+                  {"points", e.points},
+                  {"skipped", e.skipped},
+                  {"estimate_s", e.estimate_s},
+                  {"estimate_basis", e.estimate_basis}};
         step["start_at_unix"] = e.start_at_unix ? json(*e.start_at_unix) : json(nullptr);
         step["cooler_setpoint_c"] = e.cooler ? json(e.cooler->setpoint_c) : json(nullptr);
         step["fit"] = e.fit;

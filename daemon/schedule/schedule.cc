@@ -28,7 +28,8 @@ double Schedule::EstimateSeconds() const {
 
 Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
                                const std::map<std::string, std::string>& plans,
-                               const acquisition::PlanContext& context) {
+                               const acquisition::PlanContext& context,
+                               const ExposureLookup& history) {
   auto parsed = config::ParseTomlText(text, name);
   if (!parsed.ok()) return parsed.error();
   const toml::table& root = *parsed;
@@ -55,8 +56,11 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
     if (!plan.ok()) return plan.error();
     const auto points = acquisition::ExpandPoints(*plan, context);
     for (const auto& p : points) (p.skipped ? e.skipped : e.points) += 1;
-    e.estimate_s =
-        acquisition::EstimateSeconds(*plan, points, context.axes, plan->exposure.initial_s);
+    const auto seen = history ? history(plan->specimen.name) : std::nullopt;
+    e.estimate_s = acquisition::EstimateSeconds(*plan, points, context.axes,
+                                                plan->exposure.initial_s, seen ? &*seen : nullptr);
+    e.estimate_basis =
+        seen ? "run " + std::to_string(seen->run) + "'s exposures" : "the plan's initial exposure";
     GONIO_TRY(r.Integer(*t, "repeat", &e.repeat, 1, 1000));
     if (const toml::node* s = t->get("start_at")) {
       std::string iso;

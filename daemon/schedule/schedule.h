@@ -19,6 +19,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <optional>
 #include <string>
@@ -47,7 +48,8 @@ struct ScheduleEntry {
   int line = 0;  // of its [[job]]
   // From the plan: what a dry run reports.
   int points = 0, skipped = 0;
-  double estimate_s = 0;  // motion and exposure of one run
+  double estimate_s = 0;       // motion and exposure of one run (bench seconds)
+  std::string estimate_basis;  // "run N's exposures" or "the plan's initial exposure"
 };
 
 struct Schedule {
@@ -56,10 +58,16 @@ struct Schedule {
   double EstimateSeconds() const;  // all runs, without start-time waits and cooling
 };
 
-// plans: plan name (as written in the schedule) -> its text.
+// The exposures an earlier run of a specimen needed (Storage::LatestExposures), if any.
+using ExposureLookup =
+    std::function<std::optional<acquisition::ExposureHistory>(const std::string& specimen)>;
+
+// plans: plan name (as written in the schedule) -> its text. With `history`, each entry's
+// estimate prices its points at the exposures an earlier run of its specimen needed.
 Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
                                const std::map<std::string, std::string>& plans,
-                               const acquisition::PlanContext& context);
+                               const acquisition::PlanContext& context,
+                               const ExposureLookup& history = {});
 
 // "2026-11-24T02:00" or "2026-11-24T02:00:30", local time; nullopt if malformed.
 std::optional<std::int64_t> ParseLocalTime(const std::string& iso);

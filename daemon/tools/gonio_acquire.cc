@@ -144,11 +144,18 @@ int main(int argc, char** argv) {
   const auto points = ExpandPoints(*plan, ctx);
   int skipped = 0;
   for (const auto& p : points) skipped += p.skipped;
-  const double estimate = EstimateSeconds(*plan, points, cfg->axes, plan->exposure.initial_s);
+  // Priced at the exposures the newest finished run of the specimen needed, if there is one.
+  auto history = store.LatestExposures(plan->specimen.name);
+  if (!history.ok()) return Fail(history.error());
+  const ExposureHistory* seen = *history ? &**history : nullptr;
+  const double estimate = EstimateSeconds(*plan, points, cfg->axes, plan->exposure.initial_s, seen);
   if (dry_run || *run_cmd) {
     std::cout << "plan " << plan_path << ": " << plan->specimen.name << ", "
               << points.size() - skipped << " points (" << skipped << " skipped), about "
-              << Duration(estimate) << " of motion and exposure\n";
+              << Duration(estimate) << " of bench time for motion and exposure (from "
+              << (seen ? "run " + std::to_string(seen->run) + "'s exposures"
+                       : std::string("the plan's initial exposure"))
+              << ")\n";
     for (const auto& p : points)
       if (p.skipped)
         std::cout << "  skip theta_l " << p.theta_l_deg << " theta_v " << p.theta_v_deg << ": "

@@ -210,8 +210,9 @@ int main(int argc, char** argv) {
   plot->add_option("--out", out, "directory for the CSV, the fit's curves and run<N>.png")
       ->required();
   plot->add_option("--model", models, "comma-separated models")->capture_default_str();
-  plot->add_option("--gonio-fit", fit_tool,
-                   "the fitter program (default: beside gonioctl when installed, else the build's)");
+  plot->add_option(
+      "--gonio-fit", fit_tool,
+      "the fitter program (default: beside gonioctl when installed, else the build's)");
   plot->add_option("--plot-script", plot_script,
                    "fitting/tools/plot_fit.py (default: <prefix>/share/gonio/plot_fit.py when "
                    "installed, else the source tree's)");
@@ -342,7 +343,8 @@ int main(int argc, char** argv) {
           std::cout << "  line " << x["line"] << ": " << x["repeat"] << " x " << x.value("plan", "")
                     << ": " << x["points"] << " points";
           if (x.value("skipped", 0) > 0) std::cout << " (" << x["skipped"] << " skipped)";
-          std::cout << ", about " << Duration(x.value("estimate_s", 0.0)) << " each";
+          std::cout << ", about " << Duration(x.value("estimate_s", 0.0)) << " each (from "
+                    << x.value("estimate_basis", std::string("?")) << ")";
           if (!x["start_at_unix"].is_null()) {
             const std::time_t t = x["start_at_unix"].get<std::int64_t>();
             char b[32];
@@ -359,7 +361,8 @@ int main(int argc, char** argv) {
           std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
       }
       std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
-                << " of motion and exposure (start times and cooling not counted)\n";
+                << " of bench time for motion and exposure (start times and cooling not "
+                   "counted)\n";
     });
     if (rc != 0 || !wait_after || dry_run) return rc;
     return wait_idle();
@@ -442,8 +445,7 @@ int main(int argc, char** argv) {
   if (*plot) {
     // An installed gonioctl uses its installed companions; one in the build tree, the build's.
     const std::filesystem::path bin = std::filesystem::read_symlink("/proc/self/exe").parent_path();
-    if (fit_tool.empty())
-      fit_tool = Companion({bin / "gonio-fit", GONIO_FIT_TOOL});
+    if (fit_tool.empty()) fit_tool = Companion({bin / "gonio-fit", GONIO_FIT_TOOL});
     if (plot_script.empty())
       plot_script = Companion({bin / "../share/gonio/plot_fit.py", GONIO_PLOT_SCRIPT});
     for (const auto& [what, path] : {std::pair<std::string, std::string>{"--gonio-fit", fit_tool},
@@ -453,8 +455,7 @@ int main(int argc, char** argv) {
         return 2;
       }
     }
-    std::cerr << "gonioctl: fitting with " << fit_tool << ", plotting with " << plot_script
-              << "\n";
+    std::cerr << "gonioctl: fitting with " << fit_tool << ", plotting with " << plot_script << "\n";
     Reply r = api.Get("/api/v1/runs/" + std::to_string(id) + "/csv");
     if (r.status != 200) return Failed(r, url);
     std::error_code ec;

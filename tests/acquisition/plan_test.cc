@@ -95,5 +95,32 @@ TEST(Plan, EstimateGrowsWithExposureAndMotion) {
   EXPECT_GT(fast, 10 * 5 * 0.01);  // the motion adds to the exposures
 }
 
+// With an earlier run's exposures, points are priced at what they took then: here every point at
+// theta_l = 0 took 2 s after 3 ranging tries; theta_l = 30 was not measured, so it keeps the plan's
+// typical exposure. Default policy: 4 frames averaged, 4 dark frames.
+TEST(Plan, EstimateUsesAnEarlierRunsExposuresWhereItHasThem) {
+  auto p = LoadPlan(kData + "/plans/good.toml", Context());
+  ASSERT_TRUE(p.ok());
+  const auto points = ExpandPoints(*p, Context());
+  ExposureHistory h;
+  h.run = 7;
+  for (double v : {-10.4, -5.2, 0.3, 4.9, 9.6})  // near, not at, the planned views
+    h.entries.push_back({0, v, 0, 2.0, 3});
+  const double motion = EstimateSeconds(*p, points, Context().axes, 0.0);
+  const double typical = 0.05;
+  const double estimate = EstimateSeconds(*p, points, Context().axes, typical, &h);
+  // theta_l 0: 5 points x (4 + 3 - 1) frames x 2 s, and one dark set of 4 x 2 s;
+  // theta_l 30: 5 points x (4 + 1) frames x 0.05 s.
+  EXPECT_NEAR(estimate, motion + 5 * 6 * 2.0 + 4 * 2.0 + 5 * 5 * typical, 1e-9);
+  // An incidence at 0.5 deg from a measured one still matches; 2 deg away does not.
+  PlannedPoint q;
+  q.theta_l_deg = 0.5;
+  q.theta_v_deg = 1;
+  ASSERT_TRUE(h.Near(q).has_value());
+  EXPECT_EQ(h.Near(q)->theta_v_deg, 0.3);
+  q.theta_l_deg = 2;
+  EXPECT_FALSE(h.Near(q).has_value());
+}
+
 }  // namespace
 }  // namespace gonio::acquisition

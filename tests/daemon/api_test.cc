@@ -255,6 +255,25 @@ TEST_F(DaemonApi, JobsRunInQueueOrderAndQueuedOnesCanBeMovedOrCancelled) {
   EXPECT_EQ(csv->status, 200);
   EXPECT_NE(csv->body.find("theta_l_deg,theta_v_deg"), std::string::npos);
   EXPECT_EQ(std::count(csv->body.begin(), csv->body.end(), '\n'), 12);  // comment, header, 10
+
+  // A dry run of the same plan now prices its points at what the newest run needed: at least
+  // the exposure of every averaged frame that run took, which the plan's initial exposure
+  // (0.05 s) does not know.
+  auto [sd, dry] = Post("/api/v1/schedules", json{{"name", "again.toml"},
+                                                  {"schedule", "[[job]]\nplan = \"quick.toml\"\n"},
+                                                  {"plans", {{"quick.toml", kPlan}}},
+                                                  {"dry_run", true}});
+  ASSERT_EQ(sd, 200) << dry.dump();
+  const json& entry = dry["jobs"][0];
+  EXPECT_EQ(entry["estimate_basis"], "run " + std::to_string(run[third]) + "'s exposures");
+  auto rows = store->Measurements(run[third]);
+  ASSERT_TRUE(rows.ok());
+  double averaged = 0;
+  for (const auto& r : *rows) averaged += r.m.frames * r.m.exposure_s;
+  const double estimate = entry["estimate_s"].get<double>();
+  std::printf("estimate %.2f s from run %lld; its averaged frames' exposure %.2f s\n", estimate,
+              static_cast<long long>(run[third]), averaged);
+  EXPECT_GE(estimate, averaged);
 }
 
 TEST_F(DaemonApi, PauseResumeAndAbortAtArbitraryMomentsLoseNothing) {
@@ -362,6 +381,7 @@ TEST_F(DaemonApi, SchedulesAreValidatedWithFileAndLineAndDryRunsQueueNothing) {
   EXPECT_EQ(dry["jobs"][0]["points"], 10);
   EXPECT_EQ(dry["jobs"][0]["repeat"], 3);
   EXPECT_GT(dry["jobs"][0]["estimate_s"].get<double>(), 0);
+  EXPECT_EQ(dry["jobs"][0]["estimate_basis"], "the plan's initial exposure");  // no run yet
   EXPECT_NEAR(dry["estimate_s"].get<double>(), 3 * dry["jobs"][0]["estimate_s"].get<double>(),
               1e-9);
   EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);

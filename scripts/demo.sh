@@ -67,8 +67,13 @@ ctl() {
 
 echo "== the default schedule (gonioctl schedule config/schedule_demo.toml) =="
 ctl schedule config/schedule_demo.toml --dry-run
+start=$(date +%s)
 ctl schedule config/schedule_demo.toml --wait
+took=$(($(date +%s) - start))
 ctl runs
+echo "== the same schedule priced again, now from run 1's exposures =="
+ctl schedule config/schedule_demo.toml --dry-run
+echo "(run 1 took ${took} s of wall time at the simulator's x$speed clock: about $((took * speed)) s of bench time, cooling included)"
 ctl fits 1
 ctl export 1 --out "$work/run1.csv"
 

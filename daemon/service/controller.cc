@@ -147,7 +147,23 @@ Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
   std::vector<Job> interrupted;  // jobs that had started (a run) and did not finish
   for (const acquisition::JobRecord& r : *records) {
     auto j = FromRecord(r);
-    if (!j.ok()) return j.error();
+    if (!j.ok()) {  // a damaged row ends that job, not the daemon's start
+      Job bad;
+      bad.id = r.id;
+      bad.name = r.name;
+      bad.plan_text = r.plan_text;
+      bad.run = r.run;
+      bad.state = Unfinished(r.state) ? "failed" : r.state;
+      bad.message = j.error().message;
+      if (Unfinished(r.state)) {
+        acquisition::JobRecord failed = r;
+        failed.state = "failed";
+        failed.message = bad.message;
+        (void)db_.UpdateJob(failed);  // its options stay as found, for whoever looks
+      }
+      finished_.push_back(bad);
+      continue;
+    }
     if (!Unfinished(j->state)) {
       finished_.push_back(*j);
     } else if (!j->run) {

@@ -5,6 +5,7 @@
 // holds the CTest resource lock "gvcp".
 #include <gtest/gtest.h>
 #include <httplib.h>
+#include <sqlite3.h>
 
 #include <chrono>
 #include <ctime>
@@ -482,6 +483,40 @@ TEST_F(DaemonApi, TheQueueSurvivesARestartInItsOrderWithItsOptions) {
   ASSERT_TRUE(controller->Cancel(a1).ok());
   ASSERT_TRUE(controller->Cancel(b).ok());
   EXPECT_TRUE(controller->WaitIdle(5));
+}
+
+// A stored job whose options cannot be read (a damaged row) fails alone, with the reason; the
+// daemon still starts and the rest of the queue is kept.
+TEST_F(DaemonApi, ADamagedStoredJobFailsAloneAndTheDaemonStillStarts) {
+  const std::int64_t later = std::time(nullptr) + 3600;
+  char when[32];
+  std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%S", std::localtime(&later));
+  const std::string schedule =
+      "[[job]]\nplan = \"quick.toml\"\nrepeat = 2\nstart_at = \"" + std::string(when) + "\"\n";
+  const auto [st, queued] = Post(
+      "/api/v1/schedules",
+      json{{"name", "night.toml"}, {"schedule", schedule}, {"plans", {{"quick.toml", kPlan}}}});
+  ASSERT_EQ(st, 201) << queued.dump();
+  const std::int64_t damaged = queued["jobs"][0]["id"], kept = queued["jobs"][1]["id"];
+  server.reset();
+  controller->Shutdown();
+  controller.reset();
+  sqlite3* raw = nullptr;
+  ASSERT_EQ(sqlite3_open(db_path.c_str(), &raw), SQLITE_OK);
+  const std::string sql =
+      "UPDATE jobs SET options='{\"fit\": 3' WHERE id=" + std::to_string(damaged);
+  ASSERT_EQ(sqlite3_exec(raw, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(raw);
+  StartDaemon(true);
+  auto bad = controller->GetJob(damaged);
+  ASSERT_TRUE(bad.ok());
+  EXPECT_EQ(bad->state, "failed");
+  EXPECT_NE(bad->message.find("stored options unreadable"), std::string::npos) << bad->message;
+  auto good = controller->GetJob(kept);
+  ASSERT_TRUE(good.ok());
+  EXPECT_EQ(good->state, "queued");
+  EXPECT_EQ(State(), "idle");
+  ASSERT_TRUE(controller->Cancel(kept).ok());
 }
 
 // A job interrupted by a daemon stop keeps its schedule's options: held paused at start (the

@@ -263,7 +263,6 @@ void ApiServer::Routes() {
     const std::string name = body->value("name", std::string("schedule"));
     // Estimates price each point at what the newest finished run of the specimen needed.
     auto history = [this](const std::string& specimen) {
-      std::lock_guard lock(reader_mu_);
       auto h = reader_->LatestExposures(specimen);
       return h.ok() ? *h : std::nullopt;
     };
@@ -308,7 +307,6 @@ void ApiServer::Routes() {
   srv.Post("/api/v1/abort", control(&Controller::Abort));
 
   srv.Get("/api/v1/runs", [this](const httplib::Request&, httplib::Response& res) {
-    std::lock_guard lock(reader_mu_);
     auto runs = reader_->ListRuns();
     if (!runs.ok()) return ReplyError(res, runs.error());
     json list = json::array();
@@ -316,7 +314,6 @@ void ApiServer::Routes() {
     Reply(res, 200, {{"runs", list}});
   });
   srv.Get(R"(/api/v1/runs/(\d+))", [this](const httplib::Request& req, httplib::Response& res) {
-    std::lock_guard lock(reader_mu_);
     auto info = reader_->GetRun(IdOf(req));
     if (!info.ok()) return ReplyError(res, 404, info.error().message);
     auto rows = reader_->Measurements(info->id);
@@ -345,7 +342,6 @@ void ApiServer::Routes() {
     Reply(res, 200, o);
   });
   srv.Get(R"(/api/v1/runs/(\d+)/csv)", [this](const httplib::Request& req, httplib::Response& res) {
-    std::lock_guard lock(reader_mu_);
     const std::int64_t id = IdOf(req);
     if (auto info = reader_->GetRun(id); !info.ok())
       return ReplyError(res, 404, info.error().message);
@@ -359,7 +355,6 @@ void ApiServer::Routes() {
   // Fits of a run, stored with it.
   srv.Get(R"(/api/v1/runs/(\d+)/fits)",
           [this](const httplib::Request& req, httplib::Response& res) {
-            std::lock_guard lock(reader_mu_);
             const std::int64_t id = IdOf(req);
             if (auto info = reader_->GetRun(id); !info.ok())
               return ReplyError(res, 404, info.error().message);
@@ -387,7 +382,6 @@ void ApiServer::Routes() {
                  models.push_back(m.get<std::string>());
                }
              }
-             std::lock_guard lock(reader_mu_);
              auto fits = FitRun(*reader_, IdOf(req), models);
              if (!fits.ok()) return ReplyError(res, fits.error());
              json list = json::array();

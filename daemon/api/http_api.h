@@ -49,7 +49,6 @@ class ApiServer {
   Controller* controller_ = nullptr;
   ApiOptions o_;
   std::unique_ptr<acquisition::Storage> reader_;  // the API's own connection (WAL: no blocking)
-  std::mutex reader_mu_;                          // one query at a time on it
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
   int port_ = 0;

@@ -50,7 +50,8 @@ acquisition::JobRecord ToRecord(const Job& j) {
   return r;
 }
 
-Result<Job> FromRecord(const acquisition::JobRecord& r) {
+// The job's fields; its schedule options are read by ReadOptions.
+Job FromRecord(const acquisition::JobRecord& r) {
   Job j;
   j.id = r.id;
   j.name = r.name;
@@ -58,6 +59,10 @@ Result<Job> FromRecord(const acquisition::JobRecord& r) {
   j.state = r.state;
   j.run = r.run;
   j.message = r.message;
+  return j;
+}
+
+Status ReadOptions(const acquisition::JobRecord& r, Job& j) {
   try {
     const nlohmann::json o = nlohmann::json::parse(r.options_json);
     if (o.contains("start_at_unix")) j.start_at_unix = o.at("start_at_unix").get<std::int64_t>();
@@ -72,7 +77,7 @@ Result<Job> FromRecord(const acquisition::JobRecord& r) {
     return Error{ErrorCode::kInvalidArgument,
                  "job " + std::to_string(r.id) + ": stored options unreadable: " + e.what()};
   }
-  return j;
+  return OkStatus();
 }
 
 }  // namespace
@@ -146,31 +151,26 @@ Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
   if (!records.ok()) return records.error();
   std::vector<Job> interrupted;  // jobs that had started (a run) and did not finish
   for (const acquisition::JobRecord& r : *records) {
-    auto j = FromRecord(r);
-    if (!j.ok()) {  // a damaged row ends that job, not the daemon's start
-      Job bad;
-      bad.id = r.id;
-      bad.name = r.name;
-      bad.plan_text = r.plan_text;
-      bad.run = r.run;
-      bad.state = Unfinished(r.state) ? "failed" : r.state;
-      bad.message = j.error().message;
-      if (Unfinished(r.state)) {
-        acquisition::JobRecord failed = r;
-        failed.state = "failed";
-        failed.message = bad.message;
-        (void)db_.UpdateJob(failed);  // its options stay as found, for whoever looks
+    Job j = FromRecord(r);
+    if (Status st = ReadOptions(r, j); !st.ok()) {  // a damaged row ends that job, not the start
+      j.message = st.error().message;
+      if (Unfinished(j.state)) {
+        j.state = "failed";
+        acquisition::JobRecord failed = r;  // its options stay as found, for whoever looks
+        failed.state = j.state;
+        failed.message = j.message;
+        (void)db_.UpdateJob(failed);
       }
-      finished_.push_back(bad);
+      finished_.push_back(j);
       continue;
     }
-    if (!Unfinished(j->state)) {
-      finished_.push_back(*j);
-    } else if (!j->run) {
-      j->state = "queued";  // it never started
-      queue_.push_back(*j);
+    if (!Unfinished(j.state)) {
+      finished_.push_back(j);
+    } else if (!j.run) {
+      j.state = "queued";  // it never started
+      queue_.push_back(j);
     } else {
-      interrupted.push_back(*j);
+      interrupted.push_back(j);
     }
   }
   // The run decides: a job whose run finished (the daemon died before the job was stored)

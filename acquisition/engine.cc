@@ -3,8 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-
-#include "acquisition/reduce.h"
+#include <future>
 
 namespace gonio::acquisition {
 
@@ -78,21 +77,23 @@ Result<const DarkRecord*> Engine::DarkFor(double exposure_s, const Plan& plan) {
   return &darks_[key];
 }
 
-Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan) {
+Status Engine::MoveTo(const PlannedPoint& p, Measurement* m) {
   std::vector<std::pair<std::string, double>> targets = {{"sample", p.stage.sample_deg},
                                                          {"arm", p.stage.arm_deg}};
   if (HasAxis(stages_, "azimuth")) targets.emplace_back("azimuth", p.stage.azimuth_deg);
-  if (Status s = stages_.MoveTo(targets); !s.ok()) return s.error();
-  Measurement m;
-  m.index = p.index;
+  if (Status s = stages_.MoveTo(targets); !s.ok()) return s;
   for (const auto& [name, deg] : targets) {
     auto st = stages_.ReadStatus(name);
     if (!st.ok()) return st.error();
-    (name == "sample" ? m.sample_read_deg
-     : name == "arm"  ? m.arm_read_deg
-                      : m.azimuth_read_deg) = st->position_deg;
+    (name == "sample" ? m->sample_read_deg
+     : name == "arm"  ? m->arm_read_deg
+                      : m->azimuth_read_deg) = st->position_deg;
   }
+  return OkStatus();
+}
 
+Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& plan,
+                                            Measurement m) {
   const ExposurePolicy& x = plan.exposure;
   const double limit = o_.linear_limit_adu;
   const cv::Rect rect(plan.rectangle.x, plan.rectangle.y, plan.rectangle.width,
@@ -141,42 +142,56 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
     t = std::clamp(OnLadder(next), x.min_s, x.max_s);
   }
   last_exposure_s_ = t;
+  m.exposure_s = t;
 
   // The monitor is read before every frame and after the last: its mean normalises the point,
   // and its spread (flicker the exposures average out but a short reading does not) enters sigma.
-  std::vector<double> monitor;
-  RectAccumulator acc(rect, limit);
+  Exposed e{p, m, RectAccumulator(rect, limit), dark, {}, false};
   for (int k = 0; k < x.frames; ++k) {
     if (monitor_ != nullptr) {
       auto w = MonitorW();
       if (!w.ok()) return w.error();
-      monitor.push_back(*w);
+      e.monitor.push_back(*w);
     }
     ++stats_.frames;
     if (k == 0) {
       --stats_.ranging_frames;  // the last ranging frame is the first averaged one
-      acc.Add(first->image);
+      e.acc.Add(first->image);
       first.reset();  // frames are not kept beyond their reduction
+      continue;
+    }
+    stats_.exposure_s += t;
+    // The last frame is left to read out while the stages move on. A camera that cannot say
+    // when its exposure ends, or a failed Expose (nothing has moved), takes it whole.
+    if (k == x.frames - 1 && camera_.ReportsExposureEnd() && camera_.Expose().ok()) {
+      e.in_readout = true;
+      ++stats_.overlapped_readouts;
       continue;
     }
     auto f = camera_.Snap();
     if (!f.ok()) return f.error();
-    stats_.exposure_s += t;
-    acc.Add(f->image);
+    e.acc.Add(f->image);
   }
   if (monitor_ != nullptr) {
     auto w = MonitorW();
     if (!w.ok()) return w.error();
-    monitor.push_back(*w);
+    e.monitor.push_back(*w);
   }
   auto temp = camera_.TemperatureC();
   if (!temp.ok()) return temp.error();
+  e.m.temperature_c = *temp;
+  return e;
+}
 
+Result<Measurement> Engine::Reduce(const Exposed& e) {
+  Measurement m = e.m;
+  const double t = m.exposure_s;
+  const DarkRecord* dark = e.dark;
   double norm = 1, monitor_rel_var = 0;
   if (monitor_ != nullptr) {
     double sum = 0, sum2 = 0;
-    for (double w : monitor) sum += w, sum2 += w * w;
-    const double n = static_cast<double>(monitor.size());
+    for (double w : e.monitor) sum += w, sum2 += w * w;
+    const double n = static_cast<double>(e.monitor.size());
     m.monitor_w = sum / n;
     if (!(*m.monitor_w > 0))
       return Error{ErrorCode::kDeviceFault,
@@ -190,9 +205,8 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
     }
     norm = *m.monitor_w / kMonitorUnitW;  // counts per second per mW at the monitor
   }
-  m.exposure_s = t;
+  const RectAccumulator& acc = e.acc;
   m.frames = acc.frames();
-  m.temperature_c = *temp;
   m.rect_mean = acc.Mean();
   m.rect_sd = acc.FrameMeansSd();
   m.rect_pixels = acc.pixels();
@@ -205,6 +219,40 @@ Result<Measurement> Engine::MeasurePoint(const PlannedPoint& p, const Plan& plan
                           dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames));
   m.sigma = std::sqrt(var_mean / (t * norm * t * norm) + m.value * m.value * monitor_rel_var);
   return m;
+}
+
+Result<Measurement> Engine::Complete(Exposed& e) {
+  if (e.in_readout) {
+    auto f = camera_.Retrieve();
+    if (!f.ok()) return f.error();
+    e.acc.Add(f->image);
+    e.in_readout = false;
+  }
+  auto m = Reduce(e);
+  if (!m.ok()) return m;
+  if (Status s = db_.StoreMeasurement(run_, *m); !s.ok()) return s.error();
+  return m;
+}
+
+Result<Measurement> Engine::Retake(Exposed& e, const Error& why) {
+  (void)db_.AddEvent(run_, "retake",
+                     "point " + std::to_string(e.point.index) + ": its last frame was lost in " +
+                         "readout (" + why.message + "); taken again at the point");
+  Measurement back;
+  if (Status s = MoveTo(e.point, &back); !s.ok()) return s.error();
+  // Nothing else touched the camera since: it is still at the point's exposure.
+  auto f = camera_.Snap();
+  if (!f.ok()) return f.error();
+  ++stats_.retaken_frames;
+  stats_.exposure_s += e.m.exposure_s;
+  e.acc.Add(f->image);
+  e.in_readout = false;
+  if (monitor_ != nullptr) {
+    auto w = MonitorW();
+    if (!w.ok()) return w.error();
+    e.monitor.push_back(*w);
+  }
+  return Complete(e);
 }
 
 Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
@@ -225,32 +273,70 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
   pr.done = info->points_done;
   const auto t0 = std::chrono::steady_clock::now();
   int measured_here = 0;
-  for (const PlannedPoint& p : *pending) {
-    if (stop) {
-      (void)db_.AddEvent(run, "paused",
-                         "stopped by request before point " + std::to_string(p.index));
-      return db_.SetRunStatus(run, "paused");
+
+  // A device error stops the stages and leaves the run paused for a resume.
+  auto fault = [&](int index, const Error& err) -> Status {
+    (void)stages_.StopAll();
+    (void)db_.AddEvent(run, "fault", err.ToString());
+    (void)db_.SetRunStatus(run, "paused");
+    return Error{err.code, "run " + std::to_string(run) + ", point " + std::to_string(index) +
+                               ": " + err.message};
+  };
+  // The previous point while its last frame reads out, and its completion on a second thread
+  // (declared after it: the future's destructor waits for the thread before the point goes).
+  std::optional<Exposed> tail;
+  std::future<Result<Measurement>> tail_done;
+  // Waits for the previous point to be stored; a last frame lost in readout is retaken at its
+  // point, which moves the stages back (*moved_back).
+  auto settle = [&](bool* moved_back) -> Status {
+    if (!tail) return OkStatus();
+    auto m = tail_done.get();
+    if (!m.ok() && tail->in_readout) {
+      *moved_back = true;
+      m = Retake(*tail, m.error());
     }
-    auto m = MeasurePoint(p, plan);
-    if (!m.ok()) {
-      (void)stages_.StopAll();
-      (void)db_.AddEvent(run, "fault", m.error().ToString());
-      (void)db_.SetRunStatus(run, "paused");
-      return Error{m.error().code, "run " + std::to_string(run) + ", point " +
-                                       std::to_string(p.index) + ": " + m.error().message};
-    }
-    if (Status s = db_.StoreMeasurement(run, *m); !s.ok()) return s;
+    const PlannedPoint point = tail->point;
+    tail.reset();
+    if (!m.ok()) return fault(point.index, m.error());
     ++stats_.points;
     ++pr.done;
     ++measured_here;
     if (progress) {
-      pr.point = p;
+      pr.point = point;
       pr.last = *m;
       pr.elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       pr.eta_s = pr.elapsed_s / measured_here * (pr.total - pr.done);
       progress(pr);
     }
+    return OkStatus();
+  };
+
+  bool moved_back = false;
+  for (const PlannedPoint& p : *pending) {
+    if (stop) {
+      if (Status s = settle(&moved_back); !s.ok()) return s;
+      (void)db_.AddEvent(run, "paused",
+                         "stopped by request before point " + std::to_string(p.index));
+      return db_.SetRunStatus(run, "paused");
+    }
+    Measurement m;
+    m.index = p.index;
+    Status moved = MoveTo(p, &m);  // while the previous point's last frame reads out
+    moved_back = false;
+    if (Status s = settle(&moved_back); !s.ok()) return s;
+    if (moved.ok() && moved_back) moved = MoveTo(p, &m);
+    if (!moved.ok()) return fault(p.index, moved.error());
+    auto e = ExposePoint(p, plan, m);
+    if (!e.ok()) return fault(p.index, e.error());
+    tail.emplace(std::move(e).value());
+    const bool overlap = tail->in_readout;
+    tail_done = std::async(overlap ? std::launch::async : std::launch::deferred,
+                           [this, t = &*tail] { return Complete(*t); });
+    // Without a readout to overlap, the point is stored before anything moves.
+    if (!overlap)
+      if (Status s = settle(&moved_back); !s.ok()) return s;
   }
+  if (Status s = settle(&moved_back); !s.ok()) return s;
   return db_.SetRunStatus(run, "done");
 }
 

@@ -7,6 +7,11 @@
 // or when the temperature moved); the source monitor, when present, is read around every frame
 // and normalises by the lamp's output.
 //
+// The last frame of a point reads out while the stages move to the next one, when the camera
+// reports the end of its exposures (drivers::Camera::Expose): its reduction and commit happen
+// then too, on a second thread. A frame lost in that readout is taken again after the stages
+// return to its point.
+//
 // Stored value: (rectangle mean - dark mean) / exposure, in counts per second, divided by the
 // monitor's mean reading in mW when there is a monitor (so runs on different days compare),
 // proportional to BTDF * cos(theta_l) (REFERENCE.md section 1). Its sigma comes from the pooled
@@ -18,8 +23,10 @@
 #include <functional>
 #include <map>
 #include <optional>
+#include <vector>
 
 #include "acquisition/plan.h"
+#include "acquisition/reduce.h"
 #include "acquisition/storage.h"
 #include "drivers/camera/camera.h"
 #include "drivers/monitor/source_monitor.h"
@@ -38,8 +45,10 @@ struct EngineOptions {
 struct EngineStats {
   int points = 0;
   int frames = 0, ranging_frames = 0, dark_frames = 0;  // frames = the averaged ones
-  double exposure_s = 0;       // summed over every frame taken (averaged, ranging, dark)
-  double dark_exposure_s = 0;  // of which darks
+  int overlapped_readouts = 0;  // last frames read out while the stages moved on
+  int retaken_frames = 0;       // of those, frames lost in that readout and taken again
+  double exposure_s = 0;        // summed over every frame taken (averaged, ranging, dark)
+  double dark_exposure_s = 0;   // of which darks
 };
 
 struct Progress {
@@ -64,7 +73,26 @@ class Engine {
   const EngineStats& stats() const { return stats_; }
 
  private:
-  Result<Measurement> MeasurePoint(const PlannedPoint& p, const Plan& plan);
+  // A point whose frames are all exposed; its last frame may still be reading out.
+  struct Exposed {
+    PlannedPoint point;
+    Measurement m;  // geometry read back, exposure, ranging, flags, temperature
+    RectAccumulator acc;
+    const DarkRecord* dark = nullptr;
+    std::vector<double> monitor;  // W: before every frame and after the last
+    bool in_readout = false;      // the last frame is still to be retrieved
+  };
+
+  // Moves all axes together and reads their positions back into m.
+  Status MoveTo(const PlannedPoint& p, Measurement* m);
+  // Auto-ranges, darks and exposes the point's frames at the stages' present position.
+  Result<Exposed> ExposePoint(const PlannedPoint& p, const Plan& plan, Measurement m);
+  // Retrieves the last frame if it is in readout, then reduces and stores the point. A failed
+  // retrieval leaves e.in_readout set (the caller retakes the frame); nothing is stored.
+  Result<Measurement> Complete(Exposed& e);
+  // The last frame again, at its point (the stages are brought back): after a lost readout.
+  Result<Measurement> Retake(Exposed& e, const Error& why);
+  Result<Measurement> Reduce(const Exposed& e);
   Result<const DarkRecord*> DarkFor(double exposure_s, const Plan& plan);
   Result<double> MonitorW();
 

@@ -55,10 +55,11 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
     }
     if (const toml::table* k = (*t)["features"].as_table()) {
       drivers::VendorFeatures& f = s.features;
-      GONIO_TRY(r.Keys(*k, "camera.features",
-                       {"temperature_selector", "temperature_selector_value", "temperature",
-                        "control_mode", "control_on", "control_off", "setpoint",
-                        "setpoint_activate", "shutter", "shutter_open", "shutter_closed"}));
+      GONIO_TRY(r.Keys(
+          *k, "camera.features",
+          {"temperature_selector", "temperature_selector_value", "temperature", "control_mode",
+           "control_on", "control_off", "setpoint", "setpoint_activate", "shutter", "shutter_open",
+           "shutter_closed", "status_selector", "status_selector_value", "status"}));
       GONIO_TRY(r.String(*k, "temperature_selector", &f.temperature_selector));
       GONIO_TRY(r.String(*k, "temperature_selector_value", &f.temperature_selector_value));
       GONIO_TRY(r.String(*k, "temperature", &f.temperature));
@@ -73,6 +74,9 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
       GONIO_TRY(r.String(*k, "shutter", &f.shutter));
       GONIO_TRY(r.String(*k, "shutter_open", &f.shutter_open));
       GONIO_TRY(r.String(*k, "shutter_closed", &f.shutter_closed));
+      GONIO_TRY(r.String(*k, "status_selector", &f.status_selector));
+      GONIO_TRY(r.String(*k, "status_selector_value", &f.status_selector_value));
+      GONIO_TRY(r.String(*k, "status", &f.status));
     }
   }
 

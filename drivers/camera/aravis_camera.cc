@@ -64,6 +64,9 @@ void AravisCamera::Disconnect() {
     arv_camera_stop_acquisition(camera_, &e);
     if (e) g_error_free(e);
   }
+  if (early_ != nullptr) g_object_unref(early_);  // popped, so no longer the stream's
+  early_ = nullptr;
+  exposed_ = false;
   stream_owner_.reset();  // frames still held unref their buffers themselves
   stream_ = nullptr;
   if (camera_ != nullptr) g_object_unref(camera_);
@@ -135,7 +138,20 @@ Status AravisCamera::Configure() {
   arv_device_set_string_feature_value(dev, "TriggerSource", "Software", &e);
   if (Status s = Check(e, "TriggerSource Software"); !s.ok()) return s;
   arv_camera_set_exposure_time(camera_, exposure_s_ * 1e6, &e);
-  return Check(e, "ExposureTime");
+  if (Status s = Check(e, "ExposureTime"); !s.ok()) return s;
+  // The exposure's end, if the camera reports it: the selector is set once; a camera without the
+  // features (or the selector's entry) reads out every frame before the stages move.
+  const VendorFeatures& f = s_.features;
+  reports_end_ = !f.status.empty() && arv_device_get_feature(dev, f.status.c_str()) != nullptr;
+  if (reports_end_ && !f.status_selector.empty()) {
+    arv_device_set_string_feature_value(dev, f.status_selector.c_str(),
+                                        f.status_selector_value.c_str(), &e);
+    if (e != nullptr) {
+      g_clear_error(&e);
+      reports_end_ = false;
+    }
+  }
+  return OkStatus();
 }
 
 Status AravisCamera::SetExposure(double seconds) {
@@ -177,23 +193,61 @@ _ArvBuffer* AravisCamera::PopFrame(double wait_s) {
   }
 }
 
+Status AravisCamera::Trigger() {
+  // Stale frames (from before this call) go back to the pool unread.
+  if (early_ != nullptr) arv_stream_push_buffer(stream_, early_);
+  early_ = nullptr;
+  exposed_ = false;
+  while (ArvBuffer* old = arv_stream_try_pop_buffer(stream_)) arv_stream_push_buffer(stream_, old);
+  gint free_buffers = 0, filled = 0;
+  arv_stream_get_n_buffers(stream_, &free_buffers, &filled);
+  if (free_buffers == 0)
+    return Error{ErrorCode::kBusy, "camera " + s_.address + ": all " + std::to_string(s_.buffers) +
+                                       " frame buffers are held by earlier Frames; release one"};
+  GError* e = nullptr;
+  arv_camera_software_trigger(camera_, &e);
+  return Check(e, "TriggerSoftware failed");
+}
+
+Result<Frame> AravisCamera::Wrap(ArvBuffer* b, int attempt) {
+  if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_SUCCESS) {
+    const int status = static_cast<int>(arv_buffer_get_status(b));
+    arv_stream_push_buffer(stream_, b);
+    return Error{ErrorCode::kDeviceFault,
+                 "frame arrived incomplete (buffer status " + std::to_string(status) + ")"};
+  }
+  std::size_t size = 0;
+  const void* data = arv_buffer_get_data(b, &size);
+  const int w = arv_buffer_get_image_width(b), h = arv_buffer_get_image_height(b);
+  if (data == nullptr || size < static_cast<std::size_t>(w) * h * 2) {
+    arv_stream_push_buffer(stream_, b);
+    return Error{ErrorCode::kProtocol, "camera frame smaller than its image"};
+  }
+  Frame f;
+  f.exposure_s = exposure_s_;
+  f.timestamp_ns = arv_buffer_get_timestamp(b);
+  f.attempts = attempt;
+  // The view shares the buffer; the last Frame copy gives it back to the pool (or frees it if
+  // the stream has gone).
+  std::weak_ptr<_ArvStream> owner = stream_owner_;
+  f.hold = std::shared_ptr<void>(b, [owner](void* p) {
+    auto* buf = static_cast<ArvBuffer*>(p);
+    if (auto st = owner.lock()) {
+      arv_stream_push_buffer(st.get(), buf);
+    } else {
+      g_object_unref(buf);
+    }
+  });
+  f.image = cv::Mat1w(h, w, static_cast<std::uint16_t*>(const_cast<void*>(data)));
+  return f;
+}
+
 Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_problem) {
   for (int attempt = first_attempt; attempt <= first_attempt + s_.retries; ++attempt) {
-    // Stale frames (from before this call) go back to the pool unread.
-    while (ArvBuffer* old = arv_stream_try_pop_buffer(stream_))
-      arv_stream_push_buffer(stream_, old);
-    gint free_buffers = 0, filled = 0;
-    arv_stream_get_n_buffers(stream_, &free_buffers, &filled);
-    if (free_buffers == 0)
-      return Error{ErrorCode::kBusy, "camera " + s_.address + ": all " +
-                                         std::to_string(s_.buffers) +
-                                         " frame buffers are held by earlier Frames; release one"};
-    GError* e = nullptr;
-    arv_camera_software_trigger(camera_, &e);
-    if (e != nullptr) {
+    if (Status t = Trigger(); !t.ok()) {
+      if (t.error().code == ErrorCode::kBusy) return t.error();
       // The camera no longer answers: reopen it once per attempt, then trigger again.
-      *last_problem = std::string("TriggerSoftware failed: ") + e->message;
-      g_error_free(e);
+      *last_problem = t.error().message;
       if (Status s = Reopen(); !s.ok()) return s.error();
       continue;
     }
@@ -203,38 +257,70 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
       *last_problem = "no frame within " + std::to_string(wait_s) + " s";
       continue;
     }
-    if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_SUCCESS) {
-      *last_problem = "frame arrived incomplete (buffer status " +
-                      std::to_string(static_cast<int>(arv_buffer_get_status(b))) + ")";
-      arv_stream_push_buffer(stream_, b);
-      continue;
-    }
-    std::size_t size = 0;
-    const void* data = arv_buffer_get_data(b, &size);
-    const int w = arv_buffer_get_image_width(b), h = arv_buffer_get_image_height(b);
-    if (data == nullptr || size < static_cast<std::size_t>(w) * h * 2) {
-      arv_stream_push_buffer(stream_, b);
-      return Error{ErrorCode::kProtocol, "camera frame smaller than its image"};
-    }
-    Frame f;
-    f.exposure_s = exposure_s_;
-    f.timestamp_ns = arv_buffer_get_timestamp(b);
-    f.attempts = attempt;
-    // The view shares the buffer; the last Frame copy gives it back to the pool (or frees it if
-    // the stream has gone).
-    std::weak_ptr<_ArvStream> owner = stream_owner_;
-    f.hold = std::shared_ptr<void>(b, [owner](void* p) {
-      auto* buf = static_cast<ArvBuffer*>(p);
-      if (auto st = owner.lock()) {
-        arv_stream_push_buffer(st.get(), buf);
-      } else {
-        g_object_unref(buf);
-      }
-    });
-    f.image = cv::Mat1w(h, w, static_cast<std::uint16_t*>(const_cast<void*>(data)));
-    return f;
+    auto f = Wrap(b, attempt);
+    if (f.ok() || f.error().code != ErrorCode::kDeviceFault) return f;
+    *last_problem = f.error().message;
   }
   return Error{ErrorCode::kTimeout, *last_problem};
+}
+
+Status AravisCamera::Expose() {
+  if (!reports_end_)
+    return Error{ErrorCode::kFailedPrecondition,
+                 "camera " + s_.address + " does not report the end of an exposure (no " +
+                     s_.features.status + " feature): use Snap"};
+  // Nothing has moved yet, so a trigger the camera did not take is tried once more after a
+  // reopen.
+  if (Status t = Trigger(); !t.ok()) {
+    if (t.error().code == ErrorCode::kBusy) return t;
+    if (Status s = Reopen(); !s.ok()) return s;
+    if (Status again = Trigger(); !again.ok()) return again;
+  }
+  exposed_ = true;
+  ArvDevice* dev = arv_camera_get_device(camera_);
+  const auto t0 = std::chrono::steady_clock::now();
+  const double limit_s = exposure_s_ + s_.frame_timeout_s;
+  // The camera may not have begun when the status is first read: the end is "active, then not".
+  // An exposure short enough to begin and end between two reads shows as its frame arriving.
+  bool seen_active = false;
+  for (;;) {
+    GError* e = nullptr;
+    const bool active = arv_device_get_boolean_feature_value(dev, s_.features.status.c_str(), &e);
+    if (Status s = Check(e, "camera " + s_.address + ": " + s_.features.status); !s.ok()) return s;
+    if (active) {
+      seen_active = true;
+    } else if (seen_active) {
+      return OkStatus();
+    }
+    if (ArvBuffer* b = arv_stream_try_pop_buffer(stream_)) {
+      if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) {
+        early_ = b;
+        return OkStatus();
+      }
+      arv_stream_push_buffer(stream_, b);  // the CLEARED quirk (PopFrame): not a frame
+    }
+    if (Seconds(t0) > limit_s)
+      return Error{ErrorCode::kTimeout, "camera " + s_.address + ": the exposure of " +
+                                            std::to_string(exposure_s_) + " s did not end within " +
+                                            std::to_string(limit_s) + " s"};
+    std::this_thread::sleep_for(std::chrono::duration<double>(s_.status_poll_s));
+  }
+}
+
+Result<Frame> AravisCamera::Retrieve() {
+  if (!exposed_)
+    return Error{ErrorCode::kFailedPrecondition,
+                 "camera " + s_.address + ": Retrieve without Expose"};
+  exposed_ = false;
+  ArvBuffer* b = early_ != nullptr ? early_ : PopFrame(s_.frame_timeout_s);
+  early_ = nullptr;
+  if (b == nullptr)
+    return Error{ErrorCode::kTimeout, "camera " + s_.address + ": no frame within " +
+                                          std::to_string(s_.frame_timeout_s) +
+                                          " s of the exposure's end"};
+  auto f = Wrap(b, 1);
+  if (!f.ok()) return Error{f.error().code, "camera " + s_.address + ": " + f.error().message};
+  return f;
 }
 
 Result<Frame> AravisCamera::Snap() {

@@ -27,6 +27,12 @@ struct VendorFeatures {
   // The shutter for dark frames (enum feature and its entries); empty: no shutter.
   std::string shutter = "ShutterMode";
   std::string shutter_open = "Open", shutter_closed = "Closed";
+  // Whether the sensor is integrating (SFNC AcquisitionStatus with its selector at
+  // ExposureActive), so the stages may move during readout; empty: the camera cannot say, and
+  // every frame is read out before anything moves.
+  std::string status_selector = "AcquisitionStatusSelector";
+  std::string status_selector_value = "ExposureActive";
+  std::string status = "AcquisitionStatus";
 };
 
 struct CameraSettings {
@@ -39,9 +45,10 @@ struct CameraSettings {
   int binning = 1;
   int roi_x = 0, roi_y = 0, roi_width = 0, roi_height = 0;  // 0 width/height: the full sensor
   int buffers = 4;
-  double frame_timeout_s = 5;  // beyond the exposure time
-  int retries = 2;             // failed or incomplete frames re-triggered, per Snap
-  double open_timeout_s = 10;  // keep trying to open (another controller's control may linger)
+  double frame_timeout_s = 5;    // beyond the exposure time
+  int retries = 2;               // failed or incomplete frames re-triggered, per Snap
+  double open_timeout_s = 10;    // keep trying to open (another controller's control may linger)
+  double status_poll_s = 0.001;  // how often Expose() reads whether the exposure has ended
   // Where the sensor stops being linear (full well), raw ADU: acquisition keeps pixels below.
   double linear_limit_adu = 65535;
   VendorFeatures features;
@@ -79,6 +86,17 @@ class Camera {
   // exposure plus frame_timeout_s, after the retries), kDeviceFault (frames kept arriving
   // incomplete), kNotConnected (the camera left and could not be reopened).
   virtual Result<Frame> Snap() = 0;
+
+  // A frame in two halves, so the stages can move while the sensor reads out (a quarter second
+  // for a 512 x 512 CCD at 1 MHz). Expose() triggers one frame at the current settings and
+  // returns once the sensor has stopped integrating: from then on the scene may change.
+  // Retrieve() waits for that frame. Nothing is retried in between, since the scene may have
+  // moved: a frame lost after Expose() is Retrieve()'s error (kTimeout, kDeviceFault,
+  // kNotConnected), and the caller puts the scene back and takes it again with Snap().
+  // Expose() is kFailedPrecondition when ReportsExposureEnd() is false: use Snap().
+  virtual bool ReportsExposureEnd() const = 0;
+  virtual Status Expose() = 0;
+  virtual Result<Frame> Retrieve() = 0;
   virtual Result<double> TemperatureC() = 0;
   // Closes (dark frames) or opens the shutter. kInvalidArgument when the config names none.
   virtual Status SetShutter(bool open) = 0;

@@ -123,6 +123,7 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
   cam->SetReg(camera_reg::kTriggerMode, 0);
   cam->SetReg(camera_reg::kBlackLevel, static_cast<std::uint32_t>(o.sensor_options.bias_adu));
   cam->SetReg(camera_reg::kSetpoint, static_cast<std::uint32_t>(-20000));
+  cam->SetReg(camera_reg::kStatusSelector, 6);
   cam->Step(clock.Now());
   arv_fake_camera_set_fill_pattern(fake, &SimulatedCamera::Fill, cam.get());
   cam->firmware_ = std::thread([c = cam.get()] { c->Firmware(); });
@@ -231,7 +232,8 @@ void SimulatedCamera::Step(double now) {
     // has started again and triggered, and eat that trigger (a lost third frame, seen under CI
     // load). A stale trigger costs at most one early frame at the next start, which clients drain.
     if (acquiring_) {
-      exposing_ = false;
+      exposing_ = integrating_ = false;
+      SetReg(kExposureActive, 0);
       ready_frame_.reset();
     }
     acquiring_ = false;
@@ -241,12 +243,19 @@ void SimulatedCamera::Step(double now) {
   if (ready_frame_) return;  // waiting for Aravis to send the last one
   if (!exposing_ && (Reg(kTriggerMode) == 0 || Reg(kTriggerSoftware) != 0)) {
     SetReg(kTriggerSoftware, 0);
-    exposing_ = true;
+    exposing_ = integrating_ = true;
+    SetReg(kExposureActive, 1);
     exposure_start_ = now;
     exposure_s_ = Reg(ARV_FAKE_CAMERA_REGISTER_EXPOSURE_TIME_US) * 1e-6;
     angles_at_start_ = angles;
   }
   if (!exposing_) return;
+  if (integrating_ && now >= exposure_start_ + exposure_s_) {
+    // The exposure has ended: what the frame sees is settled before the status says so.
+    integrating_ = false;
+    angles_at_end_ = angles;
+    SetReg(kExposureActive, 0);
+  }
   const ImageRegion region = CurrentRegion();
   const double readout_s = sensor_.ReadoutSeconds(region.width * region.height);
   if (now < exposure_start_ + exposure_s_ + readout_s) return;
@@ -263,7 +272,7 @@ void SimulatedCamera::Step(double now) {
     g_object_set(gv_, "gvsp-lost-ratio", lose ? 0.3 : 0.0, nullptr);
     losing_packets_ = lose;
   }
-  ready_frame_ = Shoot(angles_at_start_, angles, exposure_start_, exposure_s_);
+  ready_frame_ = Shoot(angles_at_start_, angles_at_end_, exposure_start_, exposure_s_);
   SetReg(kFakeTriggerSoftware, 1);
 }
 

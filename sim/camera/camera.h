@@ -5,8 +5,10 @@
 // Timing (as a CCD): an exposure starts on TriggerSoftware (TriggerMode On) or right after the
 // previous readout (Off); the frame leaves after exposure + readout of simulated time; the stage
 // angles at the start and end of the exposure decide what it sees (their mean image, if the
-// stages moved). The firmware renders the frame before releasing it, so Aravis's single protocol
-// thread never blocks on rendering and keeps answering GVCP.
+// stages moved). AcquisitionStatus (ExposureActive) falls when the exposure ends, in the step
+// that takes the end angles, so motion during the readout does not reach the frame. The firmware
+// renders the frame before releasing it, so Aravis's single protocol thread never blocks on
+// rendering and keeps answering GVCP.
 //
 // Registers (docs/camera_features.md): Aravis's fake camera implements those below 0x400; the
 // firmware owns 0x400 and up. Network rules (shared/DESIGN.md): loopback only, GVCP port 3956, so
@@ -49,6 +51,8 @@ inline constexpr std::uint32_t kSetpointActivate = 0x414;   // write 1: apply kS
 inline constexpr std::uint32_t kCoolingPower = 0x418;       // milli-percent (RO)
 inline constexpr std::uint32_t kBlackLevel = 0x41c;         // ADU
 inline constexpr std::uint32_t kShutter = 0x428;            // 0 open, 1 closed (dark frames)
+inline constexpr std::uint32_t kExposureActive = 0x42c;     // 1 while integrating (RO)
+inline constexpr std::uint32_t kStatusSelector = 0x430;     // 6: ExposureActive (the only one)
 }  // namespace camera_reg
 
 // The genicam file installed beside the sources (compiled-in path; overridable).
@@ -123,7 +127,8 @@ class SimulatedCamera {
   bool exposing_ = false;
   bool acquiring_ = false;  // acquisition was running at the last firmware step
   double exposure_start_ = 0, exposure_s_ = 0;
-  StageAngles angles_at_start_;
+  bool integrating_ = false;  // exposing_ and the exposure has not yet ended (readout follows)
+  StageAngles angles_at_start_, angles_at_end_;
   std::optional<cv::Mat1w> ready_frame_;
   int drop_frames_ = 0;
   bool losing_packets_ = false;  // the last frame left with gvsp-lost-ratio raised

@@ -1,9 +1,11 @@
 // The camera driver (drivers/camera/aravis_camera.h) against the simulated cooled CCD over real
 // GigE Vision on 127.0.0.1 (the CTest resource lock "gvcp"): opening by IP, frames that view the
 // stream's buffers, retries of incomplete and lost frames from the fault plan, reopening a camera
-// that went away, and cooling to a stable temperature.
+// that went away, the split frame that lets the stages move during readout, and cooling to a
+// stable temperature.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <memory>
 
 #include "drivers/camera/aravis_camera.h"
@@ -21,13 +23,13 @@ class CameraDriver : public ::testing::Test {
  protected:
   void Start(std::vector<sim::FaultEvent> faults = {}) {
     plan = std::make_unique<sim::FaultPlan>(std::move(faults), 1);
-    sim::CameraOptions o;
+    sim::CameraOptions o = options;
     o.sensor.sensor_width = o.sensor.sensor_height = 128;
     o.sensor.mm_per_pixel = 0.64;
     auto cam = sim::SimulatedCamera::StartGigE(
         clock, scene,
-        [] {
-          return sim::StageAngles{0, 180, 0};
+        [this] {
+          return sim::StageAngles{0, arm_deg.load(), 0};
         },
         lamp, o, plan.get());
     ASSERT_TRUE(cam.ok()) << cam.error().message;
@@ -44,6 +46,8 @@ class CameraDriver : public ::testing::Test {
   sim::Lamp lamp{sim::LampOptions{.drift_per_hour = 0, .wander_amplitude = 0, .flicker_rms = 0}};
   sim::Scene scene{sim::BenchGeometry{}, sim::MicrofacetTruth("beckmann", 0.344, 1.51)};
   std::unique_ptr<sim::FaultPlan> plan;
+  sim::CameraOptions options;
+  std::atomic<double> arm_deg{180};  // the arm the camera sits on (180: straight through)
   std::unique_ptr<sim::SimulatedCamera> sim_camera;
 };
 
@@ -109,6 +113,72 @@ TEST_F(CameraDriver, ACameraThatWentAwayIsReopened) {
   auto f = cam->Snap();
   ASSERT_TRUE(f.ok()) << f.error().message;
   EXPECT_EQ(cam->reopens(), 1);
+}
+
+// The split frame (Camera::Expose / Retrieve): Expose() returns when the sensor stops
+// integrating, so an arm moved right after it leaves the frame as it was; the camera is read out
+// slowly here (1.6 s) so that a frame taking its angles at the readout's end would show the move.
+TEST_F(CameraDriver, ExposeReturnsAtTheExposuresEndSoAMoveDuringReadoutLeavesTheFrame) {
+  options.sensor_options.readout_pixel_rate_hz = 1e4;
+  Start();
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  ASSERT_TRUE(cam->ReportsExposureEnd());
+  ASSERT_TRUE(cam->SetExposure(0.05).ok());
+  const cv::Rect patch(60, 60, 8, 8);
+  auto level = [&](const drivers::Frame& f) { return cv::mean(f.image(patch))[0] - 500; };
+  auto straight = cam->Snap();
+  ASSERT_TRUE(straight.ok()) << straight.error().message;
+  arm_deg = 150;
+  auto off = cam->Snap();
+  ASSERT_TRUE(off.ok()) << off.error().message;
+  const double lit = level(*straight), dim = level(*off);
+  ASSERT_GT(lit, 2 * dim) << "the patch must tell the two arm angles apart";
+  straight = off = Error{ErrorCode::kAborted, "released"};
+
+  arm_deg = 180;
+  const double t0 = clock.Now();
+  ASSERT_TRUE(cam->Expose().ok());
+  const double exposed_at = clock.Now() - t0;
+  arm_deg = 150;  // the readout has begun: the stages may go
+  auto f = cam->Retrieve();
+  ASSERT_TRUE(f.ok()) << f.error().message;
+  const double retrieved_at = clock.Now() - t0;
+  // Returned after the exposure (0.05 s) and well before the readout's end (1.6 s later).
+  EXPECT_GE(exposed_at, 0.05);
+  EXPECT_LT(exposed_at, 1.0);
+  EXPECT_GT(retrieved_at, 1.6);
+  EXPECT_NEAR(level(*f), lit, 0.1 * lit) << "dim " << dim;
+}
+
+TEST_F(CameraDriver, ARetrievalLostAfterExposeIsAnErrorAndNotRetried) {
+  Start();
+  CameraSettings s;
+  s.retries = 3;
+  auto cam = Open(s);
+  ASSERT_TRUE(cam);
+  auto r = cam->Retrieve();
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kFailedPrecondition);
+  sim_camera->DropFrames(1);
+  ASSERT_TRUE(cam->Expose().ok());
+  r = cam->Retrieve();
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kTimeout) << r.error().message;
+  auto again = cam->Snap();  // the caller's retake
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_EQ(again->attempts, 1);
+  // A camera without the status feature cannot split a frame: Expose says so.
+  CameraSettings none;
+  none.features.status = "NoSuchFeature";
+  cam.reset();
+  auto plain = Open(none);
+  ASSERT_TRUE(plain);
+  EXPECT_FALSE(plain->ReportsExposureEnd());
+  const Status e = plain->Expose();
+  ASSERT_FALSE(e.ok());
+  EXPECT_EQ(e.error().code, ErrorCode::kFailedPrecondition);
+  EXPECT_TRUE(plain->Snap().ok());
 }
 
 TEST_F(CameraDriver, CoolsToASetpointAndHoldsIt) {

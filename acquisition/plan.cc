@@ -107,7 +107,7 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
   if (g == nullptr) return r.Fail(nullptr, "the plan has no [geometry]");
   GONIO_TRY(r.Keys(*g, "geometry",
                    {"incidence_deg", "view_from_deg", "view_to_deg", "view_step_deg", "azimuth_deg",
-                    "arm_shadow_half_angle_deg", "view_about"}));
+                    "arm_shadow_half_angle_deg", "view_about", "side"}));
   if (g->get("incidence_deg") == nullptr) return r.Fail(g, "[geometry] needs incidence_deg");
   GONIO_TRY(Numbers(r, *g, "incidence_deg", &p.incidence_deg, 0, 89.9));
   p.azimuth_deg = {0};
@@ -116,7 +116,14 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
   GONIO_TRY(r.Number(*g, "view_to_deg", &p.view_to_deg, -89.9, 89.9));
   GONIO_TRY(r.Number(*g, "view_step_deg", &p.view_step_deg, 0.01, 90));
   GONIO_TRY(r.Number(*g, "arm_shadow_half_angle_deg", &p.arm_shadow_half_angle_deg, 0, 45));
-  GONIO_TRY(r.String(*g, "view_about", &p.view_about, {"normal", "refracted"}));
+  GONIO_TRY(r.String(*g, "side", &p.side, {"transmission", "reflection"}));
+  GONIO_TRY(r.String(*g, "view_about", &p.view_about, {"normal", "refracted", "specular"}));
+  if ((p.view_about == "refracted" && p.side != "transmission") ||
+      (p.view_about == "specular" && p.side != "reflection"))
+    return r.Fail(g->get("view_about"),
+                  "view_about '" + p.view_about + "' is for side = \"" +
+                      (p.side == "reflection" ? "transmission" : "reflection") +
+                      "\" (this plan's side is " + p.side + ")");
   if (!(p.view_from_deg <= p.view_to_deg))
     return r.Fail(g->get("view_to_deg") ? g->get("view_to_deg") : g,
                   "view_to_deg must not be below view_from_deg");
@@ -212,13 +219,17 @@ std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& cont
         if (plan.view_about == "refracted") {  // Snell: sin(theta_t) = sin(theta_l) / eta
           const double theta_t = std::asin(std::sin(theta_l * M_PI / 180) / plan.specimen.eta);
           theta_v += -theta_t * 180 / M_PI;
+        } else if (plan.view_about == "specular") {
+          theta_v += theta_l;
         }
         PlannedPoint p;
         p.index = static_cast<int>(out.size());
         p.theta_l_deg = theta_l;
         p.theta_v_deg = theta_v;
         p.phi_deg = phi;
-        p.stage = StageTargetsFor(theta_l, theta_v, phi);
+        p.reflection = plan.side == "reflection";
+        p.stage = p.reflection ? StageTargetsForReflection(theta_l, theta_v, phi)
+                               : StageTargetsFor(theta_l, theta_v, phi);
         std::string why;
         if (std::abs(theta_v) >= 89.9) why = "theta_v beyond grazing";
         if (why.empty()) why = LimitProblem(Axis(context.axes, "arm"), &p.stage.arm_deg);
@@ -242,7 +253,8 @@ std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& cont
 std::optional<ExposureHistory::Entry> ExposureHistory::Near(const PlannedPoint& p) const {
   std::optional<Entry> best;
   for (const Entry& e : entries) {
-    if (std::abs(e.theta_l_deg - p.theta_l_deg) > 1 || std::abs(e.phi_deg - p.phi_deg) > 1)
+    if (e.reflection != p.reflection || std::abs(e.theta_l_deg - p.theta_l_deg) > 1 ||
+        std::abs(e.phi_deg - p.phi_deg) > 1)
       continue;
     if (!best ||
         std::abs(e.theta_v_deg - p.theta_v_deg) < std::abs(best->theta_v_deg - p.theta_v_deg))

@@ -49,6 +49,9 @@ struct Rectangle {
 struct PlannedPoint {
   int index = 0;  // order of measurement
   double theta_l_deg = 0, theta_v_deg = 0, phi_deg = 0;
+  // The camera on the light side: theta_v from +n, theta_v = theta_l specular
+  // (StageTargetsForReflection). Otherwise through the hemisphere, theta_v from -n.
+  bool reflection = false;
   StageTargets stage;  // sample, arm, azimuth (deg)
   bool skipped = false;
   std::string reason;  // why it is skipped
@@ -59,8 +62,13 @@ struct Plan {
   Specimen specimen;
   std::vector<double> incidence_deg, azimuth_deg;
   double view_from_deg = -80, view_to_deg = 80, view_step_deg = 2;
-  // "normal": view angles are theta_v; "refracted": offsets from the straight-through view
-  // theta_v = -theta_t (Snell at the specimen's eta), so each incidence sweeps its own lobe.
+  // "transmission" (through the hemisphere, the bench's main use) or "reflection" (the camera
+  // on the light side, looking at the rough face).
+  std::string side = "transmission";
+  // "normal": view angles are theta_v; "refracted" (transmission): offsets from the
+  // straight-through view theta_v = -theta_t (Snell at the specimen's eta); "specular"
+  // (reflection): offsets from the mirror direction theta_v = theta_l. Either way each incidence
+  // sweeps its own lobe.
   std::string view_about = "normal";
   double arm_shadow_half_angle_deg = 4;
   ExposurePolicy exposure;
@@ -93,11 +101,12 @@ struct ExposureHistory {
     double theta_l_deg = 0, theta_v_deg = 0, phi_deg = 0;
     double exposure_s = 0;
     int ranging_tries = 0;
+    bool reflection = false;
   };
   std::int64_t run = 0;  // the run they come from
   std::vector<Entry> entries;
-  // The measured geometry nearest in view angle at the same incidence and azimuth (within
-  // 1 deg); nullopt where the earlier run did not measure that incidence.
+  // The measured geometry nearest in view angle on the same side at the same incidence and
+  // azimuth (within 1 deg); nullopt where the earlier run did not measure that incidence.
   std::optional<Entry> Near(const PlannedPoint& p) const;
 };
 

@@ -71,6 +71,11 @@ CREATE TABLE jobs(
   updated_at TEXT NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')));
 CREATE INDEX jobs_by_state ON jobs(state, position);
 )sql",
+    // 3: reflection plans (the camera on the light side): which side each point views from.
+    R"sql(
+ALTER TABLE plan_points ADD COLUMN side TEXT NOT NULL DEFAULT 'transmission'
+  CHECK(side IN ('transmission','reflection'));
+)sql",
 };
 constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
 static_assert(kMigrationCount == kSchemaVersion);
@@ -218,11 +223,11 @@ Result<std::int64_t> Storage::CreateRun(std::int64_t specimen_id, std::int64_t c
   for (const PlannedPoint& p : points) {
     Stmt pt(db_,
             "INSERT INTO plan_points(run_id, idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, "
-            "arm_deg, azimuth_deg, status, reason) VALUES(?,?,?,?,?,?,?,?,?,?)");
+            "arm_deg, azimuth_deg, status, reason, side) VALUES(?,?,?,?,?,?,?,?,?,?,?)");
     pt.Bind(1, id).Bind(2, p.index).Bind(3, p.theta_l_deg).Bind(4, p.theta_v_deg);
     pt.Bind(5, p.phi_deg).Bind(6, p.stage.sample_deg).Bind(7, p.stage.arm_deg);
     pt.Bind(8, p.stage.azimuth_deg).Bind(9, std::string(p.skipped ? "skipped" : "pending"));
-    pt.Bind(10, p.reason);
+    pt.Bind(10, p.reason).Bind(11, std::string(p.reflection ? "reflection" : "transmission"));
     if (pt.Step() != SQLITE_DONE) return fail(pt.Fail("storing plan point"));
   }
   if (Status s = Exec("COMMIT"); !s.ok()) return fail(s.error());
@@ -320,12 +325,13 @@ Result<std::optional<std::int64_t>> Storage::UnfinishedRun() {
 
 Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending_only) {
   std::lock_guard guard(mu_);
-  Stmt q(db_, pending_only
-                  ? "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
-                    "azimuth_deg, status, reason FROM plan_points WHERE run_id=? AND "
-                    "status='pending' ORDER BY idx"
-                  : "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
-                    "azimuth_deg, status, reason FROM plan_points WHERE run_id=? ORDER BY idx");
+  Stmt q(db_,
+         pending_only
+             ? "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
+               "azimuth_deg, status, reason, side FROM plan_points WHERE run_id=? AND "
+               "status='pending' ORDER BY idx"
+             : "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
+               "azimuth_deg, status, reason, side FROM plan_points WHERE run_id=? ORDER BY idx");
   q.Bind(1, run);
   std::vector<PlannedPoint> out;
   int rc;
@@ -338,6 +344,7 @@ Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending
     p.stage = {q.D(4), q.D(5), q.D(6)};
     p.skipped = q.T(7) == "skipped";
     p.reason = q.T(8);
+    p.reflection = q.T(9) == "reflection";
     out.push_back(p);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading plan points");
@@ -385,8 +392,8 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
          "SELECT p.idx, p.theta_l_deg, p.theta_v_deg, p.phi_deg, p.sample_deg, p.arm_deg, "
          "p.azimuth_deg, m.sample_read_deg, m.arm_read_deg, m.azimuth_read_deg, m.exposure_s, "
          "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
-         "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries "
-         "FROM measurements m JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
+         "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries, "
+         "p.side FROM measurements m JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
          "WHERE m.run_id=? ORDER BY p.idx");
   q.Bind(1, run);
   std::vector<MeasurementRow> out;
@@ -415,6 +422,7 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
     r.m.sigma = q.D(21);
     r.m.flags = static_cast<int>(q.I(22));
     r.m.ranging_tries = static_cast<int>(q.I(23));
+    r.point.reflection = q.T(24) == "reflection";
     out.push_back(r);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading measurements");
@@ -436,7 +444,7 @@ Result<std::optional<ExposureHistory>> Storage::LatestExposures(const std::strin
   if (!rows.ok()) return rows.error();
   for (const MeasurementRow& r : *rows)
     h.entries.push_back({r.point.theta_l_deg, r.point.theta_v_deg, r.point.phi_deg, r.m.exposure_s,
-                         r.m.ranging_tries});
+                         r.m.ranging_tries, r.point.reflection});
   return std::optional<ExposureHistory>(std::move(h));
 }
 
@@ -489,13 +497,14 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
   if (!rows.ok()) return rows.error();
   out << "# run " << run << ": dark-subtracted, monitor-normalised counts per second\n"
       << "theta_l_deg,theta_v_deg,phi_l_deg,phi_v_deg,value,sigma,exposure_s,frames,"
-         "rect_mean_adu,temperature_c,monitor_w,flags\n";
+         "rect_mean_adu,temperature_c,monitor_w,flags,side\n";
   out.precision(9);
   for (const MeasurementRow& r : *rows) {
     out << r.point.theta_l_deg << "," << r.point.theta_v_deg << "," << r.point.phi_deg << ","
         << r.point.phi_deg << "," << r.m.value << "," << r.m.sigma << "," << r.m.exposure_s << ","
         << r.m.frames << "," << r.m.rect_mean << "," << r.m.temperature_c << ","
-        << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << "\n";
+        << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << ","
+        << (r.point.reflection ? "reflection" : "transmission") << "\n";
   }
   return OkStatus();
 }

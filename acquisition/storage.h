@@ -20,7 +20,7 @@ struct sqlite3;
 
 namespace gonio::acquisition {
 
-inline constexpr int kSchemaVersion = 2;
+inline constexpr int kSchemaVersion = 3;
 
 struct RunInfo {
   std::int64_t id = 0;
@@ -123,13 +123,14 @@ class Storage {
 
   Result<std::int64_t> StoreDark(const DarkRecord& d);
 
-  // The run's measurements as the fitter's CSV (fitting/samples_csv.h): theta_l_deg, theta_v_deg,
-  // phi_l_deg, phi_v_deg, value, sigma, then the raw statistics.
   // Fit results stored with their run: parameters and summary as JSON text.
   Result<std::int64_t> StoreFitResult(std::int64_t run, const std::string& model,
                                       const std::string& parameters, const std::string& summary);
   Result<std::vector<FitRecord>> FitResults(std::int64_t run);
 
+  // The run's measurements as the fitter's CSV (fitting/samples_csv.h): theta_l_deg, theta_v_deg,
+  // phi_l_deg, phi_v_deg, value, sigma, then the raw statistics and each point's side
+  // (transmission or reflection).
   Status ExportCsv(std::int64_t run, const std::string& path);
   Status ExportCsv(std::int64_t run, std::ostream& out);  // the same CSV to a stream
 

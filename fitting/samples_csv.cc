@@ -88,6 +88,18 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
       if (Status s = number(col, 0, out); !s) return s.error();
     if (Status s = number(kOptional[0], 0, &pl); !s) return s.error();
     if (Status s = number(kOptional[1], 0, &pv); !s) return s.error();
+    // An export marks each point's side; the models here are BTDFs, so a reflection sample
+    // (the camera on the light side) is refused rather than read as a transmitted one.
+    if (auto it = column.find("side"); it != column.end()) {
+      const std::string_view side = fields[it->second];
+      if (side == "reflection")
+        return InvalidArgument(where() +
+                               "side 'reflection': the fitter fits transmission (BTDF) samples "
+                               "only; this run's camera was on the light side");
+      if (side != "transmission" && !side.empty())
+        return InvalidArgument(where() + "column 'side': '" + std::string(side) +
+                               "' is not transmission or reflection");
+    }
     if (!(std::abs(tl) < 90)) return InvalidArgument(where() + "theta_l_deg must lie in (-90, 90)");
     if (!(std::abs(tv) < 90)) return InvalidArgument(where() + "theta_v_deg must lie in (-90, 90)");
     Sample s = SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);

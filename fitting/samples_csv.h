@@ -3,6 +3,8 @@
 // Format: a header row naming the columns, in any order, then one sample per row.
 //   theta_l_deg, theta_v_deg, value, sigma   required (bench angles, sample.h)
 //   phi_l_deg, phi_v_deg                     optional, default 0
+//   side                                     optional: transmission (or empty); a reflection
+//                                            row is refused (the models are BTDFs)
 // Other columns are ignored. Blank lines and lines starting with '#' are skipped.
 // Every error names file:line and the column; nothing is guessed.
 #pragma once

@@ -24,6 +24,11 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
   std::vector<fitting::Sample> all, normal;
   bool other = false;
   for (const auto& r : *rows) {
+    if (r.point.reflection)  // a plan has one side: the whole run is reflection
+      return Error{ErrorCode::kFailedPrecondition,
+                   "run " + std::to_string(run) +
+                       " measured reflection (the camera on the light side); the fitter fits "
+                       "transmission (BTDF) samples only"};
     auto s =
         fitting::SampleFromBenchAngles(r.point.theta_l_deg, r.point.phi_deg, r.point.theta_v_deg,
                                        r.point.phi_deg, r.m.value, r.m.sigma);

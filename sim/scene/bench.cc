@@ -67,12 +67,13 @@ Scene::Scene(BenchGeometry bench, std::shared_ptr<const GroundTruth> truth, Scen
 std::optional<PixelRay> Scene::Trace(const StageAngles& angles, double x_mm, double y_mm) const {
   const Frame f = FrameOf(angles);
   const V c = f.camera_dir;
-  if (c.z >= 0) return std::nullopt;  // the camera looks at the rough side: reflection
   const V origin{0, 0, -bench_.CentreOffsetMm()};
   const V up{0, 1, 0};
   const V across{c.z, 0, -c.x};  // Cross(up, c): horizontal, facing the camera
   const V pinhole = origin + c * bench_.camera_distance_mm;
   const V r = Normalize(origin + across * x_mm + up * y_mm - pinhole);
+  if (c.z > 0) return TraceReflection(f.source_dir, f.phi, pinhole, r);
+  if (c.z == 0) return std::nullopt;  // edge-on
 
   // Enter the sphere (first intersection from the camera side).
   const double R = bench_.sphere_radius_mm;
@@ -108,6 +109,30 @@ std::optional<PixelRay> Scene::Trace(const StageAngles& angles, double x_mm, dou
   return ray;
 }
 
+// The camera on the light side sees the rough face straight from the air: no lens in the way,
+// the same flood illumination falling off with the square of the distance to the source.
+std::optional<PixelRay> Scene::TraceReflection(const V& source_dir, double phi, const V& pinhole,
+                                               const V& r) const {
+  if (r.z >= 0) return std::nullopt;
+  const V hit = pinhole + r * (-pinhole.z / r.z);  // the rough surface z = 0
+  if (std::abs(hit.x) > bench_.plate_half_width_mm || std::abs(hit.y) > bench_.plate_half_width_mm)
+    return std::nullopt;
+  const V origin{0, 0, -bench_.CentreOffsetMm()};
+  const V to_source = origin + source_dir * bench_.source_distance_mm - hit;
+  const double dist = Length(to_source);
+  PixelRay ray;
+  ray.l = AzimuthTurn(to_source / dist, phi);
+  ray.v = AzimuthTurn(-r, phi);
+  ray.hit_mm = AzimuthTurn(hit, phi);
+  const double inv_sq = bench_.source_distance_mm / dist;
+  // The scene's constant k is per unit of f_t cos theta_l as seen through the lens: radiance
+  // leaving the glass is f_t cos E / eta^2 times the pole's Fresnel transmittance. The same k for
+  // radiance reflected into the air undoes both, so the two sides' rates compare.
+  const double t_pole = 1 - optics::FresnelDielectric(1.0, bench_.eta);
+  ray.exit_transmittance = bench_.eta * bench_.eta / t_pole * inv_sq * inv_sq;
+  return ray;
+}
+
 bool Scene::NeedsApertures(const StageAngles& angles) const {
   const NominalGeometry g = Nominal(bench_, angles);
   if (!g.transmission || g.l.z <= 0) return false;
@@ -122,7 +147,11 @@ double Scene::RateAt(const StageAngles& angles, double x_mm, double y_mm, bool s
                                                             : o_.stray_background_e_per_s;
   }
   double signal = 0;
-  if (ray->l.z > 0) {
+  if (ray->v.z > 0) {  // reflection: the truth may hold no BRDF (then stray light only)
+    if (ray->l.z > 0)
+      signal = o_.electrons_per_s_per_unit * truth_->BrdfCos(ray->l, ray->v).value_or(0) *
+               ray->exit_transmittance;
+  } else if (ray->l.z > 0) {
     const double f = averaged ? ApertureAveragedBtdfCos(*truth_, ray->l, ray->v, o_.apertures, 6)
                               : truth_->BtdfCos(ray->l, ray->v);
     signal = o_.electrons_per_s_per_unit * f * ray->exit_transmittance;

@@ -21,7 +21,10 @@
 // the source. That single trace carries the finite rectangle's spread of view directions, the
 // sphere-centre offset (it moves the hit points, hence the light direction) and the edge of the
 // plate; none needs its own correction. The finite source and lens apertures are averaged only
-// when ApertureMatters says so at the nominal geometry (narrow lobes). One refractive index for
+// when ApertureMatters says so at the nominal geometry (narrow lobes; transmission only). With the
+// camera on the light side (reflection plans) the flat rough face is seen directly: the ray meets
+// z = 0, and the pixel's radiance is the truth's BRDF (no lens, no glass path; light reflected at
+// the hemisphere's back faces is not modelled). One refractive index for
 // sample, adhesive and lens: their 1.50-1.52 mismatch bends a ray by < 0.02 deg.
 #pragma once
 
@@ -92,9 +95,12 @@ struct SceneOptions {
 
 // One pixel's traced ray.
 struct PixelRay {
-  optics::Vec3<double> l, v;      // sample frame, at the hit point
-  optics::Vec3<double> hit_mm;    // on the rough surface
-  double exit_transmittance = 1;  // Fresnel transmittance at the sphere surface
+  optics::Vec3<double> l, v;    // sample frame, at the hit point
+  optics::Vec3<double> hit_mm;  // on the rough surface
+  // What multiplies k * f cos theta_l: the Fresnel transmittance at the sphere surface relative
+  // to the pole's, and the source's inverse square; for reflection, eta^2 / the pole's
+  // transmittance instead of the first (Scene::TraceReflection says why).
+  double exit_transmittance = 1;
 };
 
 class Scene {
@@ -106,7 +112,8 @@ class Scene {
   const SceneOptions& options() const { return o_; }
 
   // The ray of the object-plane point (x_mm, y_mm) (x horizontal in the plane of incidence,
-  // y vertical): nullopt where it misses the lens or the plate, or the camera is on the air side.
+  // y vertical): nullopt where it misses the lens or the plate. A camera on the air side
+  // (reflection) sees the rough face directly; v then points up (v.z > 0).
   std::optional<PixelRay> Trace(const StageAngles& angles, double x_mm, double y_mm) const;
 
   // Photo-electron rate (e-/s) per output pixel at the lamp's nominal output: the sum over each
@@ -119,6 +126,9 @@ class Scene {
  private:
   double RateAt(const StageAngles& angles, double x_mm, double y_mm, bool shadowed,
                 bool averaged) const;
+  std::optional<PixelRay> TraceReflection(const optics::Vec3<double>& source_dir, double phi,
+                                          const optics::Vec3<double>& pinhole,
+                                          const optics::Vec3<double>& r) const;
   bool NeedsApertures(const StageAngles& angles) const;
 
   BenchGeometry bench_;

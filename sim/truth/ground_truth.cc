@@ -58,16 +58,24 @@ std::shared_ptr<GroundTruth> MicrofacetTruth(const std::string& family, double a
     const optics::RoughDielectricBsdf<optics::BeckmannDistribution<double>> bsdf(
         optics::BeckmannDistribution<double>(alpha), eta);
     return std::make_shared<AnalyticTruth>(
-        label, [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
+        label,
+        [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
           return bsdf.Btdf(l, v);
+        },
+        [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
+          return bsdf.Brdf(l, v);
         });
   }
   if (family == "ggx") {
     const optics::RoughDielectricBsdf<optics::GgxDistribution<double>> bsdf(
         optics::GgxDistribution<double>(alpha), eta);
     return std::make_shared<AnalyticTruth>(
-        label, [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
+        label,
+        [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
           return bsdf.Btdf(l, v);
+        },
+        [bsdf](const optics::Vec3<double>& l, const optics::Vec3<double>& v) {
+          return bsdf.Brdf(l, v);
         });
   }
   std::fprintf(stderr, "MicrofacetTruth: unknown family '%s'\n", family.c_str());

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "sim/truth/btdf_table.h"
@@ -19,20 +20,34 @@ class GroundTruth {
   virtual std::string Name() const = 0;
   // f_t(l, v) |cos theta_l| for light l above and view v below (optics conventions).
   virtual double BtdfCos(const optics::Vec3<double>& l, const optics::Vec3<double>& v) const = 0;
+  // f_r(l, v) |cos theta_l| for light and view both above (a camera on the light side); nullopt
+  // when the truth holds transmission only (a Monte Carlo table bins the reflected flux as a
+  // total, not by direction).
+  virtual std::optional<double> BrdfCos(const optics::Vec3<double>& /*l*/,
+                                        const optics::Vec3<double>& /*v*/) const {
+    return std::nullopt;
+  }
 };
 
 // An analytic model (microseconds per evaluation).
 class AnalyticTruth final : public GroundTruth {
  public:
-  AnalyticTruth(std::string name, BtdfFunction f) : name_(std::move(name)), f_(std::move(f)) {}
+  // `brdf` (the same signature, light and view above) may be empty: transmission only.
+  AnalyticTruth(std::string name, BtdfFunction f, BtdfFunction brdf = {})
+      : name_(std::move(name)), f_(std::move(f)), brdf_(std::move(brdf)) {}
   std::string Name() const override { return name_; }
   double BtdfCos(const optics::Vec3<double>& l, const optics::Vec3<double>& v) const override {
     return f_(l, v) * std::abs(l.z);
   }
+  std::optional<double> BrdfCos(const optics::Vec3<double>& l,
+                                const optics::Vec3<double>& v) const override {
+    if (!brdf_) return std::nullopt;
+    return brdf_(l, v) * std::abs(l.z);
+  }
 
  private:
   std::string name_;
-  BtdfFunction f_;
+  BtdfFunction f_, brdf_;
 };
 
 // A Monte Carlo table, for its own incidence only. The rectangle's pixels (near the pole) see
@@ -55,10 +70,10 @@ class TabulatedTruth final : public GroundTruth {
   BtdfTable t_;
 };
 
-// A microfacet model of the optics library (Walter 2007 eq. 21), the fitter's own formulas: the
-// cheapest truth, exact for what the fitter assumes. alpha is the distribution's width, eta the
-// glass index relative to the air. Family: "beckmann" or "ggx"; others abort (a caller's bug: the
-// config parser validates names).
+// A microfacet model of the optics library (Walter 2007 eq. 21, and eq. 20 for a reflection
+// plan's BRDF), the fitter's own formulas: the cheapest truth, exact for what the fitter assumes.
+// alpha is the distribution's width, eta the glass index relative to the air. Family: "beckmann" or
+// "ggx"; others abort (a caller's bug: the config parser validates names).
 std::shared_ptr<GroundTruth> MicrofacetTruth(const std::string& family, double alpha, double eta);
 
 enum class TruthKind { kAnalytic, kStatisticalMonteCarlo, kExplicitSurfaces };

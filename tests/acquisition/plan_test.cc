@@ -84,6 +84,63 @@ TEST(Plan, RefractedViewsCentreEachIncidencesLobe) {
   EXPECT_NEAR(points[7].theta_v_deg, -19.3372, 1e-3);
 }
 
+// Reflection plans put the camera on the light side: arm = theta_l + theta_v, specular at
+// theta_v = theta_l, and the view back along the beam (retro-reflection) is skipped, not taken.
+TEST(Plan, ReflectionPlansSweepAboutTheSpecularDirectionAndSkipTheSourceBeam) {
+  const std::string text =
+      "sample = \"ground-glass-G1\"\n[geometry]\nside = \"reflection\"\n"
+      "incidence_deg = [0, 40]\nview_about = \"specular\"\nview_from_deg = -10\n"
+      "view_to_deg = 10\nview_step_deg = 10\n[rectangle]\nx = 253\ny = 246\nwidth = 6\n"
+      "height = 19\n";
+  auto p = LoadPlanText(text, "r.toml", Context());
+  ASSERT_TRUE(p.ok()) << p.error().message;
+  const auto points = ExpandPoints(*p, Context());
+  ASSERT_EQ(points.size(), 6u);
+  for (const auto& pt : points) EXPECT_TRUE(pt.reflection);
+  // theta_l 0: views -10, 0, 10 about the specular direction 0; arm = theta_l + theta_v.
+  EXPECT_DOUBLE_EQ(points[0].theta_v_deg, -10);
+  EXPECT_DOUBLE_EQ(points[0].stage.arm_deg, 350);
+  EXPECT_FALSE(points[0].skipped) << points[0].reason;
+  // Normal incidence, normal view: the camera would sit in the source beam.
+  EXPECT_TRUE(points[1].skipped);
+  EXPECT_NE(points[1].reason.find("block the source beam"), std::string::npos) << points[1].reason;
+  // theta_l 40 sweeps back: 50, 40 (specular, arm 80), 30.
+  EXPECT_DOUBLE_EQ(points[3].theta_v_deg, 50);
+  EXPECT_DOUBLE_EQ(points[4].theta_v_deg, 40);
+  EXPECT_DOUBLE_EQ(points[4].stage.arm_deg, 80);
+  EXPECT_FALSE(points[4].skipped);
+  // The view about a refracted direction means nothing on the light side, and the reverse.
+  auto bad = LoadPlanText(
+      "sample = \"ground-glass-G1\"\n[geometry]\nside = \"reflection\"\n"
+      "incidence_deg = [0]\nview_about = \"refracted\"\n",
+      "r.toml", Context());
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.error().message.rfind("r.toml:5: view_about 'refracted' is for side = "
+                                      "\"transmission\"",
+                                      0),
+            0u)
+      << bad.error().message;
+  // The example plans in config/ load, and the reflection example skips its retro views.
+  auto example = LoadPlan(GONIO_SOURCE_DIR "/config/plan_reflection.toml", Context());
+  ASSERT_TRUE(example.ok()) << example.error().message;
+  int retro = 0;
+  for (const auto& pt : ExpandPoints(*example, Context())) {
+    EXPECT_TRUE(pt.reflection);
+    if (pt.skipped) {
+      ++retro;
+      EXPECT_NEAR(pt.theta_v_deg, -pt.theta_l_deg, 4) << pt.reason;  // back along the beam
+    }
+  }
+  EXPECT_EQ(retro, 1);  // theta_l 20, offset -40: theta_v -20, arm 0
+  EXPECT_TRUE(LoadPlan(GONIO_SOURCE_DIR "/config/plan_ground_glass.toml", Context()).ok());
+  auto sideways = LoadPlanText(
+      "sample = \"ground-glass-G1\"\n[geometry]\nside = \"sideways\"\nincidence_deg = [0]\n",
+      "s.toml", Context());
+  ASSERT_FALSE(sideways.ok());
+  EXPECT_NE(sideways.error().message.find("s.toml:3:"), std::string::npos)
+      << sideways.error().message;
+}
+
 TEST(Plan, EstimateGrowsWithExposureAndMotion) {
   auto p = LoadPlan(kData + "/plans/good.toml", Context());
   ASSERT_TRUE(p.ok());

@@ -91,17 +91,21 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   }
   sqlite3* db = nullptr;
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(db, "DROP INDEX jobs_by_state; DROP TABLE jobs; PRAGMA user_version=1",
+  // Back to version 1: without the jobs (2) and the points' side (3).
+  ASSERT_EQ(sqlite3_exec(db,
+                         "DROP INDEX jobs_by_state; DROP TABLE jobs; "
+                         "ALTER TABLE plan_points DROP COLUMN side; PRAGMA user_version=1",
                          nullptr, nullptr, nullptr),
             SQLITE_OK);
   sqlite3_close(db);
   auto s = Storage::Open(path);
   ASSERT_TRUE(s.ok()) << s.error().message;
-  EXPECT_EQ((*s)->schema_version(), 2);
+  EXPECT_EQ((*s)->schema_version(), 3);
   auto rows = (*s)->Measurements(run);
   ASSERT_TRUE(rows.ok());
   ASSERT_EQ(rows->size(), 1u);
   EXPECT_EQ((*rows)[0].m.value, 42);
+  EXPECT_FALSE((*rows)[0].point.reflection);  // the older runs were all transmission
   JobRecord j;
   j.name = "after.toml";
   j.plan_text = "sample = \"G1\"\n";

@@ -41,6 +41,13 @@ TEST(SamplesCsv, MalformedFilesNameFileLineAndColumn) {
             "s.csv:2: has 3 fields, the header has 4");
   EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma\n95,1,2,1\n"),
             "s.csv:2: theta_l_deg must lie in (-90, 90)");
+  // An export's side column: transmission rows are read, a reflection row is refused.
+  EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma,side\n0,1,2,1,transmission\n"
+                    "0,30,2,1,reflection\n"),
+            "s.csv:3: side 'reflection': the fitter fits transmission (BTDF) samples only; this "
+            "run's camera was on the light side");
+  EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma,side\n0,1,2,1,sideways\n"),
+            "s.csv:2: column 'side': 'sideways' is not transmission or reflection");
   EXPECT_EQ(ErrorOf(""), "s.csv: empty file (no header row)");
   EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma\n"), "s.csv: no samples after the header");
 }

@@ -3,6 +3,7 @@
 
 #include <cmath>
 
+#include "common/bench_angles.h"
 #include "sim/scene/bench.h"
 #include "sim/truth/ground_truth.h"
 
@@ -33,6 +34,51 @@ TEST(SceneTest, RayThroughTheCentreSeesTheNominalDirections) {
   EXPECT_NEAR(Dot(ray->v, g.v), 1.0, 1e-12);  // through O: no refraction at the sphere
   EXPECT_NEAR(Dot(ray->l, g.l), 1.0, 1e-12);  // hit point at O for a 6 mm sample
   EXPECT_NEAR(ray->exit_transmittance, 1.0, 1e-12);
+}
+
+// A reflection geometry: the camera on the light side sees the rough face directly, the centre
+// pixel along the nominal directions, and the image follows the truth's BRDF * cos theta_l from
+// view to view (eq. 20), peaking at the specular direction. The expected ratio is computed here
+// from D and eq. 20's 1/|o.n| alone; F and G change by under 2 % over these views, inside the
+// tolerance.
+TEST(SceneTest, ReflectionViewsSeeTheRoughFaceWithTheTruthsBrdf) {
+  const Scene scene(BenchGeometry{}, MicrofacetTruth("beckmann", 0.3, 1.51));
+  const ImageRegion region;
+  auto at = [](double tl, double tv) {
+    const StageTargets t = StageTargetsForReflection(tl, tv);
+    return StageAngles{t.sample_deg, t.arm_deg, 0};
+  };
+  const StageAngles specular = at(30, 30);
+  const NominalGeometry g = Nominal(scene.bench(), specular);
+  EXPECT_FALSE(g.transmission);
+  const auto ray = scene.Trace(specular, 0, 0);
+  ASSERT_TRUE(ray.has_value());
+  EXPECT_NEAR(ray->v.x, -std::sin(30 * kDeg), 1e-12);  // mirror of l = (sin 30, 0, cos 30)
+  EXPECT_NEAR(ray->v.z, std::cos(30 * kDeg), 1e-12);
+  EXPECT_NEAR(Dot(ray->l, g.l), 1.0, 1e-12);
+  auto centre = [&](double tv) { return scene.PixelRate(at(30, tv), region, 256, 256); };
+  const double peak = centre(30);
+  EXPECT_GT(peak, 5 * centre(-20));  // a lobe about the specular direction
+  // (Beyond the specular direction the rate still rises a little: eq. 20's 1/|o.n|, the
+  // off-specular peak of rough surfaces, which the ratios below include.)
+  // Beckmann D at the half vector between l (30 deg) and v (theta_v), over eq. 20's |o.n|,
+  // relative to the peak.
+  auto d_ratio = [](double tv) {
+    const double half = (tv - 30) / 2 * kDeg;  // the half vector's polar angle
+    const double t = std::tan(half);
+    return std::exp(-t * t / (0.3 * 0.3)) / std::pow(std::cos(half), 4) * std::cos(30 * kDeg) /
+           std::cos(tv * kDeg);
+  };
+  for (double tv : {20.0, 40.0}) {
+    const double stray = scene.options().stray_lens_e_per_s;
+    EXPECT_NEAR((centre(tv) - stray) / (peak - stray), d_ratio(tv), 0.05 * d_ratio(tv))
+        << "theta_v " << tv;
+  }
+  // A truth that holds transmission only shows stray light in reflection, never a made-up lobe.
+  BtdfTable empty;
+  const Scene tabulated(BenchGeometry{}, std::make_shared<TabulatedTruth>("table", empty));
+  EXPECT_DOUBLE_EQ(tabulated.PixelRate(specular, region, 256, 256),
+                   tabulated.options().stray_lens_e_per_s);
 }
 
 TEST(SceneTest, CentreOffsetMovesTheHitPointNotTheViewDirection) {

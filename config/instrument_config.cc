@@ -27,10 +27,10 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor"}));
 
   if (const toml::table* t = root["camera"].as_table()) {
-    GONIO_TRY(
-        r.Keys(*t, "camera",
-               {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning", "roi",
-                "buffers", "frame_timeout_s", "retries", "linear_limit_adu", "features"}));
+    GONIO_TRY(r.Keys(*t, "camera",
+                     {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning",
+                      "roi", "buffers", "frame_timeout_s", "retries", "linear_limit_adu",
+                      "status_poll_s", "features"}));
     drivers::CameraSettings& s = c.camera;
     GONIO_TRY(r.Bool(*t, "enabled", &c.camera_enabled));
     GONIO_TRY(r.String(*t, "address", &s.address));
@@ -42,6 +42,7 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
     GONIO_TRY(r.Integer(*t, "retries", &s.retries, 0, 10));
     GONIO_TRY(r.Number(*t, "frame_timeout_s", &s.frame_timeout_s, 0.01, 600));
     GONIO_TRY(r.Number(*t, "linear_limit_adu", &s.linear_limit_adu, 100, 65535));
+    GONIO_TRY(r.Number(*t, "status_poll_s", &s.status_poll_s, 1e-4, 1));
     if (const toml::node* n = t->get("roi")) {
       const toml::array* a = n->as_array();
       if (a == nullptr || a->size() != 4 || !a->is_homogeneous<std::int64_t>())

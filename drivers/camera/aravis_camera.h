@@ -2,7 +2,10 @@
 // never by discovery (shared/DESIGN.md network rules); TriggerMode On with TriggerSoftware, a
 // pool of stream buffers, failed or incomplete buffers re-triggered a bounded number of times, and
 // a reopen when the camera has dropped off the network. Expose() watches SFNC's
-// AcquisitionStatus (ExposureActive) when the camera has it, so readout can overlap motion.
+// AcquisitionStatus (ExposureActive) when the camera has it, so readout can overlap motion. An
+// exposure that begins and ends between two reads (under about a millisecond) looks the same as
+// one not yet begun: Expose() then returns when its frame arrives, with nothing overlapped. An
+// SFNC counter of exposure ends would remove that case; it is not used yet.
 #pragma once
 
 #include <memory>

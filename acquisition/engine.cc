@@ -17,7 +17,7 @@ double UnixNow() {
 // exposures, so the dark library serves them without a dark per point.
 double OnLadder(double t) { return std::pow(10.0, std::floor(8 * std::log10(t) + 1e-9) / 8); }
 
-bool HasAxis(const drivers::StageController& s, const std::string& name) {
+bool HasAxis(const devices::StageController& s, const std::string& name) {
   for (const auto& a : s.axes())
     if (a.name == name) return true;
   return false;
@@ -25,8 +25,8 @@ bool HasAxis(const drivers::StageController& s, const std::string& name) {
 
 }  // namespace
 
-Engine::Engine(drivers::StageController& stages, drivers::Camera& camera,
-               drivers::SourceMonitor* monitor, Storage& db, EngineOptions options)
+Engine::Engine(devices::StageController& stages, devices::Camera& camera,
+               devices::SourceMonitor* monitor, Storage& db, EngineOptions options)
     : stages_(stages), camera_(camera), monitor_(monitor), db_(db), o_(options) {}
 
 Result<double> Engine::MonitorW() {
@@ -102,7 +102,7 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
   t = std::clamp(t, x.min_s, x.max_s);
   // Auto-ranging: the brightest rectangle pixel above dark goes to `target` of the linear range
   // above dark; a pixel past `saturation` shortens the exposure, one below `floor` lengthens it.
-  std::optional<drivers::Frame> first;
+  std::optional<devices::Frame> first;
   const DarkRecord* dark = nullptr;
   for (int tries = 1;; ++tries) {
     if (Status s = camera_.SetExposure(t); !s.ok()) return s.error();
@@ -263,7 +263,7 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
   monitor_reference_ = info->monitor_reference_w;  // a resumed run keeps its reference
   auto pending = db_.Points(run, /*pending_only=*/true);
   if (!pending.ok()) return pending.error();
-  if (Status s = db_.SetRunStatus(run, "running"); !s.ok()) return s;
+  if (Status s = db_.SetRunStatus(run, RunStatus::kRunning); !s.ok()) return s;
   if (info->points_done > 0)
     (void)db_.AddEvent(run, "resumed", std::to_string(info->points_done) + " points already done");
   // The shutter starts open (a previous run may have been killed during a dark).
@@ -278,7 +278,7 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
   auto fault = [&](int index, const Error& err) -> Status {
     (void)stages_.StopAll();
     (void)db_.AddEvent(run, "fault", err.ToString());
-    (void)db_.SetRunStatus(run, "paused");
+    (void)db_.SetRunStatus(run, RunStatus::kPaused);
     return Error{err.code, "run " + std::to_string(run) + ", point " + std::to_string(index) +
                                ": " + err.message};
   };
@@ -317,7 +317,7 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
       if (Status s = settle(&moved_back); !s.ok()) return s;
       (void)db_.AddEvent(run, "paused",
                          "stopped by request before point " + std::to_string(p.index));
-      return db_.SetRunStatus(run, "paused");
+      return db_.SetRunStatus(run, RunStatus::kPaused);
     }
     Measurement m;
     m.index = p.index;
@@ -337,7 +337,7 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
       if (Status s = settle(&moved_back); !s.ok()) return s;
   }
   if (Status s = settle(&moved_back); !s.ok()) return s;
-  return db_.SetRunStatus(run, "done");
+  return db_.SetRunStatus(run, RunStatus::kDone);
 }
 
 }  // namespace gonio::acquisition

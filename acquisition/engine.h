@@ -8,14 +8,15 @@
 // and normalises by the lamp's output.
 //
 // The last frame of a point reads out while the stages move to the next one, when the camera
-// reports the end of its exposures (drivers::Camera::Expose): its reduction and commit happen
+// reports the end of its exposures (devices::Camera::Expose): its reduction and commit happen
 // then too, on a second thread. A frame lost in that readout is taken again after the stages
 // return to its point.
 //
 // Stored value: (rectangle mean - dark mean) / exposure, in counts per second, divided by the
 // monitor's mean reading in mW when there is a monitor (so runs on different days compare),
-// proportional to BTDF * cos(theta_l) (REFERENCE.md section 1). Its sigma comes from the pooled
-// per-pixel variance of the frames and of the dark, and the spread of the monitor's readings.
+// proportional to BTDF * cos(theta_l) (docs/reference.md section 1). Its sigma comes from the
+// pooled per-pixel variance of the frames and of the dark, and the spread of the monitor's
+// readings.
 #pragma once
 
 #include <atomic>
@@ -28,9 +29,9 @@
 #include "acquisition/plan.h"
 #include "acquisition/reduce.h"
 #include "acquisition/storage.h"
-#include "drivers/camera/camera.h"
-#include "drivers/monitor/source_monitor.h"
-#include "drivers/stage/stage.h"
+#include "devices/camera.h"
+#include "devices/source_monitor.h"
+#include "devices/stage.h"
 
 namespace gonio::acquisition {
 
@@ -61,7 +62,7 @@ struct Progress {
 class Engine {
  public:
   // The devices and the database must outlive the engine; `monitor` may be null.
-  Engine(drivers::StageController& stages, drivers::Camera& camera, drivers::SourceMonitor* monitor,
+  Engine(devices::StageController& stages, devices::Camera& camera, devices::SourceMonitor* monitor,
          Storage& db, EngineOptions options = {});
 
   // Runs (or resumes) `run`. Returns OK when every point is done (the run is marked done), or
@@ -96,9 +97,9 @@ class Engine {
   Result<const DarkRecord*> DarkFor(double exposure_s, const Plan& plan);
   Result<double> MonitorW();
 
-  drivers::StageController& stages_;
-  drivers::Camera& camera_;
-  drivers::SourceMonitor* monitor_;
+  devices::StageController& stages_;
+  devices::Camera& camera_;
+  devices::SourceMonitor* monitor_;
   Storage& db_;
   EngineOptions o_;
   std::int64_t run_ = 0;

@@ -33,7 +33,7 @@ Status Numbers(Reader& r, const toml::table& t, const char* key, std::vector<dou
   return OkStatus();
 }
 
-const drivers::AxisSettings* Axis(const std::vector<drivers::AxisSettings>& axes,
+const devices::AxisSettings* Axis(const std::vector<devices::AxisSettings>& axes,
                                   const std::string& name) {
   for (const auto& a : axes)
     if (a.name == name) return &a;
@@ -41,7 +41,7 @@ const drivers::AxisSettings* Axis(const std::vector<drivers::AxisSettings>& axes
 }
 
 // The travel limits an angle must respect, or "" when it fits (arm angles may wrap by 360).
-std::string LimitProblem(const drivers::AxisSettings* a, double* deg) {
+std::string LimitProblem(const devices::AxisSettings* a, double* deg) {
   if (a == nullptr) return "";
   for (double candidate : {*deg, *deg - 360, *deg + 360}) {
     if (candidate >= a->min_deg && candidate <= a->max_deg) {
@@ -179,7 +179,7 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
   }
   // Every incidence must be reachable by the sample axis: a plan that cannot do what it says
   // is refused, not quietly thinned (single view angles beyond reach are only skipped).
-  const drivers::AxisSettings* sample_axis = Axis(context.axes, "sample");
+  const devices::AxisSettings* sample_axis = Axis(context.axes, "sample");
   for (std::size_t k = 0; k < p.incidence_deg.size(); ++k) {
     double deg = p.incidence_deg[k];
     if (std::string why = LimitProblem(sample_axis, &deg); !why.empty())
@@ -264,11 +264,11 @@ std::optional<ExposureHistory::Entry> ExposureHistory::Near(const PlannedPoint& 
 }
 
 double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
-                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s,
+                       const std::vector<devices::AxisSettings>& axes, double typical_exposure_s,
                        const ExposureHistory* history) {
   // A trapezoid per axis: distance / speed + speed / acceleration; axes move together.
   auto move_s = [&](const std::string& name, double from, double to) {
-    const drivers::AxisSettings* a = Axis(axes, name);
+    const devices::AxisSettings* a = Axis(axes, name);
     if (a == nullptr || from == to) return 0.0;
     const double d = std::abs(to - from), v = a->speed_deg_s, acc = a->acceleration_deg_s2;
     return d >= v * v / acc ? d / v + v / acc : 2 * std::sqrt(d / acc);

@@ -14,7 +14,7 @@
 
 #include "common/bench_angles.h"
 #include "common/result.h"
-#include "drivers/stage/stage.h"
+#include "devices/stage.h"
 
 namespace gonio::acquisition {
 
@@ -79,7 +79,7 @@ struct Plan {
 
 struct PlanContext {
   std::vector<Specimen> specimens;
-  std::vector<drivers::AxisSettings> axes;  // travel limits
+  std::vector<devices::AxisSettings> axes;  // travel limits
   int image_width = 0, image_height = 0;    // 0: not checked
 };
 
@@ -116,7 +116,7 @@ struct ExposureHistory {
 // the exposure and ranging tries of the nearest earlier point, plus a dark set at each exposure
 // not seen before in the run (the dark library is reused while fresh). Readout is not counted.
 double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
-                       const std::vector<drivers::AxisSettings>& axes, double typical_exposure_s,
+                       const std::vector<devices::AxisSettings>& axes, double typical_exposure_s,
                        const ExposureHistory* history = nullptr);
 
 }  // namespace gonio::acquisition

@@ -11,6 +11,7 @@
 #include <optional>
 #include <ostream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "acquisition/plan.h"
@@ -22,11 +23,21 @@ namespace gonio::acquisition {
 
 inline constexpr int kSchemaVersion = 3;
 
+// A run's status, stored as text ("planned", "running", ...) and turned into a string only where
+// it is stored or sent.
+enum class RunStatus { kPlanned, kRunning, kPaused, kDone, kAborted, kFailed };
+const char* ToString(RunStatus s);
+std::optional<RunStatus> ParseRunStatus(std::string_view text);
+// Done, aborted or failed: nothing more will be measured.
+inline bool Finished(RunStatus s) {
+  return s == RunStatus::kDone || s == RunStatus::kAborted || s == RunStatus::kFailed;
+}
+
 struct RunInfo {
   std::int64_t id = 0;
   std::string specimen;
   double specimen_eta = 1.5;
-  std::string status;  // planned | running | paused | done | aborted | failed
+  RunStatus status = RunStatus::kPlanned;
   int points_total = 0, points_done = 0, points_skipped = 0;
   std::optional<double> monitor_reference_w;
   std::string plan_text;
@@ -41,18 +52,6 @@ struct RunEvent {
 struct FitRecord {
   std::int64_t id = 0;
   std::string model, parameters, summary, created_at;
-};
-
-// A job of the daemon's queue (daemon/service/controller.h), stored so that the queue and each
-// job's schedule options survive a restart. options: the daemon's JSON, opaque here.
-struct JobRecord {
-  std::int64_t id = 0;
-  std::string name, plan_text;
-  std::string state;  // queued | running | paused | done | aborted | failed | cancelled
-  std::optional<std::int64_t> run;
-  std::string message;
-  std::string options_json = "{}";
-  std::int64_t position = 0;  // order among queued jobs, ascending
 };
 
 struct DarkRecord {
@@ -103,7 +102,11 @@ class Storage {
   Result<std::int64_t> CreateRun(std::int64_t specimen_id, std::int64_t config_id,
                                  const std::string& plan_text,
                                  const std::vector<PlannedPoint>& points);
-  Status SetRunStatus(std::int64_t run, const std::string& status);
+  // A new run of a plan, as every program starts one: its specimen (stored once), the
+  // instrument config's text (once per distinct content), and its points; the run's id.
+  Result<std::int64_t> NewRun(const Plan& plan, const std::string& config_text,
+                              const std::vector<PlannedPoint>& points);
+  Status SetRunStatus(std::int64_t run, RunStatus status);
   Status SetMonitorReference(std::int64_t run, double watts);
   Status AddEvent(std::int64_t run, const std::string& kind, const std::string& detail);
   Result<std::vector<RunEvent>> Events(std::int64_t run);  // oldest first
@@ -134,15 +137,15 @@ class Storage {
   Status ExportCsv(std::int64_t run, const std::string& path);
   Status ExportCsv(std::int64_t run, std::ostream& out);  // the same CSV to a stream
 
-  // The daemon's jobs. InsertJob places the job after every other (its position) and returns
-  // its id; UpdateJob stores state, run, message and options; SetQueueOrder renumbers the given
-  // jobs' positions in that order, in one transaction.
-  Result<std::int64_t> InsertJob(const JobRecord& j);
-  Status UpdateJob(const JobRecord& j);
-  Status SetQueueOrder(const std::vector<std::int64_t>& ids);
-  // Unfinished jobs (queued, running, paused) in queue order, then the newest `finished_limit`
-  // finished ones, oldest first.
-  Result<std::vector<JobRecord>> Jobs(int finished_limit);
+  // For a layer above that keeps a table of its own in this file (the daemon's job queue,
+  // daemon/service/job_store.h; its table is migration 2 of the schema): runs
+  // fn(connection, path) under the lock that keeps each call, and its transaction, alone, and
+  // returns what fn returns. fn must not call back into this Storage.
+  template <typename F>
+  auto WithConnection(F&& fn) {
+    std::lock_guard guard(mu_);
+    return fn(db_, path_);
+  }
 
  private:
   Storage() = default;

@@ -20,13 +20,8 @@
 #include <string>
 
 #include "acquisition/engine.h"
-#include "drivers/camera/aravis_camera.h"
-#include "drivers/monitor/scpi_power_meter.h"
-#include "drivers/stage/modbus_stage.h"
-#include "sim/camera/camera.h"
-#include "sim/monitor/power_meter.h"
-#include "sim/stage/modbus_tcp_server.h"
-#include "sim/truth/ground_truth.h"
+#include "daemon/instrument/instrument.h"
+#include "sim/instrument.h"
 
 using namespace gonio;
 using namespace gonio::acquisition;
@@ -60,41 +55,27 @@ int main(int argc, char** argv) {
                  "       acquisition_sweep soak [points >= 200] [clock_speed > 0]\n");
     return 2;
   }
-  sim::ScaledClock clock(speed);
-  const sim::Lamp lamp;
-  const sim::Scene scene(sim::BenchGeometry{}, sim::MicrofacetTruth("beckmann", 0.344, 1.51));
-  sim::SimulatedAxis sample_axis(clock, {}, "sample"), arm_axis(clock, {}, "arm");
-  auto tcp = sim::StageModbusTcpServer::Start({&sample_axis, &arm_axis}, 0, nullptr, &clock);
-  auto cam = sim::SimulatedCamera::StartGigE(
-      clock, scene,
-      [&] {
-        return sim::StageAngles{sample_axis.PositionSteps() / 1000,
-                                180 + arm_axis.PositionSteps() / 1000, 0};
-      },
-      lamp);
-  if (!tcp.ok() || !cam.ok()) {
+  // The simulated instrument (two axes, the camera, the monitor), reached through the backends
+  // as goniod reaches it.
+  auto started = sim::Instrument::Start(sim::TwoAxisConfig(speed));
+  if (!started.ok()) {
     std::fprintf(stderr, "cannot start the simulated instrument: %s\n",
-                 (!tcp.ok() ? tcp.error() : cam.error()).message.c_str());
+                 started.error().message.c_str());
     return 1;
   }
-  sim::SimulatedPowerMeter meter_device(clock, lamp);
-  drivers::ScpiPowerMeter meter(meter_device);
-  drivers::ModbusLink link;
-  link.port = (*tcp)->port();
-  drivers::AxisSettings s{.name = "sample", .slave_id = 1};
-  s.min_deg = -90, s.max_deg = 90, s.speed_deg_s = 20, s.acceleration_deg_s2 = 100;
-  drivers::AxisSettings a = s;
-  a.name = "arm", a.slave_id = 2, a.degrees_at_zero = 180, a.min_deg = 0, a.max_deg = 360;
-  auto stages = drivers::ModbusStageController::Open(link, {s, a});
+  sim::Instrument& simulated = **started;
+  const sim::Clock& clock = simulated.clock();
+  config::InstrumentConfig client = simulated.ClientConfig();
+  for (devices::AxisSettings& ax : client.axes) ax.speed_deg_s = 20, ax.acceleration_deg_s2 = 100;
   // The soak reads a 64 x 64 region around the rectangle: many frames, little transfer.
-  drivers::CameraSettings cs;
+  devices::CameraSettings& cs = client.camera;
   if (soak) cs.roi_x = 224, cs.roi_y = 224, cs.roi_width = 64, cs.roi_height = 64;
-  auto camera = drivers::AravisCamera::Open(cs);
-  if (!stages.ok() || !camera.ok()) {
-    std::fprintf(stderr, "cannot open the drivers: %s\n",
-                 (!stages.ok() ? stages.error() : camera.error()).message.c_str());
+  auto opened = daemon::OpenInstrument(client, {{"G1", "glass", 6, 1.51}});
+  if (!opened.ok()) {
+    std::fprintf(stderr, "cannot open the backends: %s\n", opened.error().message.c_str());
     return 1;
   }
+  daemon::Instrument& in = *opened;
   const std::string db_path =
       (std::filesystem::temp_directory_path() / "gonio_sweep_bench.sqlite").string();
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
@@ -115,9 +96,8 @@ int main(int argc, char** argv) {
             << (soak ? "[rectangle]\nx = 29\ny = 22\nwidth = 6\nheight = 19\n"
                      : "[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n");
   plan_file.close();
-  PlanContext ctx;
-  ctx.specimens = {{"G1", "glass", 6, 1.51}};
-  ctx.axes = {s, a};
+  PlanContext ctx = in.context;
+  ctx.image_width = ctx.image_height = 0;  // the soak's region is smaller than the plan's frame
   auto plan = LoadPlan(plan_path, ctx);
   if (!db.ok() || !plan.ok()) {
     std::fprintf(stderr, "setup: %s\n", (!db.ok() ? db.error() : plan.error()).message.c_str());
@@ -125,10 +105,13 @@ int main(int argc, char** argv) {
   }
   auto points = ExpandPoints(*plan, ctx);
   if (soak && static_cast<int>(points.size()) > count) points.resize(count);
-  auto sp = (*db)->EnsureSpecimen(plan->specimen);
-  auto cfg = (*db)->StoreConfig("bench");
-  auto run = (*db)->CreateRun(*sp, *cfg, plan->text, points);
-  Engine engine(**stages, **camera, &meter, **db, EngineOptions{.linear_limit_adu = 40000});
+  auto run = (*db)->NewRun(*plan, "bench", points);
+  if (!run.ok()) {
+    std::fprintf(stderr, "setup: %s\n", run.error().message.c_str());
+    return 1;
+  }
+  Engine engine(*in.stages, *in.camera, in.monitor.monitor.get(), **db,
+                EngineOptions{.linear_limit_adu = 40000});
   std::atomic<bool> stop{false};
   const double t0 = clock.Now();
   long rss_100 = 0, rss_end = 0;
@@ -145,15 +128,15 @@ int main(int argc, char** argv) {
   }
   const EngineStats& e = engine.stats();
   // Motion bound along the order: EstimateSeconds with zero exposure counts only the profiles.
-  const double motion = EstimateSeconds(*plan, points, {s, a}, 0.0);
+  const double motion = EstimateSeconds(*plan, points, client.axes, 0.0);
   const double bound = e.exposure_s + motion;
   const int all_frames = e.frames + e.ranging_frames + e.dark_frames;
-  const auto size = (*camera)->ImageSize();
+  const auto size = in.camera->ImageSize();
   const int pixels = size.ok() ? size->area() : 512 * 512;
-  const double readout = all_frames * (*cam)->sensor().ReadoutSeconds(pixels);
+  const double readout = all_frames * simulated.camera()->sensor().ReadoutSeconds(pixels);
   // The readouts that overlapped a move are inside the motion bound already.
   const double readout_alone =
-      (all_frames - e.overlapped_readouts) * (*cam)->sensor().ReadoutSeconds(pixels);
+      (all_frames - e.overlapped_readouts) * simulated.camera()->sensor().ReadoutSeconds(pixels);
   std::printf("# Sweep efficiency on the simulated instrument (acquisition_sweep %s%d %g)\n\n",
               soak ? "soak " : "", count, speed);
   std::printf("| quantity | value |\n|---|---|\n");

@@ -19,8 +19,9 @@
 #include <vector>
 
 #include "daemon/api/http_api.h"
+#include "daemon/instrument/instrument.h"
 #include "daemon/service/controller.h"
-#include "tests/support/sim_instrument.h"
+#include "sim/instrument.h"
 
 namespace {
 
@@ -56,12 +57,18 @@ int main(int argc, char** argv) {
   const double rate = argc > 1 ? std::atof(argv[1]) : 50;
   const int clients = argc > 2 ? std::atoi(argv[2]) : 2;
   const double speed = argc > 3 ? std::atof(argv[3]) : 100;
-  testing::SimInstrument inst;
-  testing::SimInstrumentOptions so;
-  so.clock_speed = speed;
-  if (Status s = inst.Start(so); !s.ok()) {
+  auto simulated = sim::Instrument::Start(sim::TwoAxisConfig(speed));
+  if (!simulated.ok()) {
     std::fprintf(stderr, "api_latency: the simulated instrument did not start: %s\n",
-                 s.error().ToString().c_str());
+                 simulated.error().ToString().c_str());
+    return 1;
+  }
+  config::InstrumentConfig client = (*simulated)->ClientConfig();
+  client.camera.gain_db = 12;
+  for (devices::AxisSettings& a : client.axes) a.speed_deg_s = 30, a.acceleration_deg_s2 = 300;
+  auto inst = daemon::OpenInstrument(client, {{"ground-glass-G1", "glass", 6, 1.51}});
+  if (!inst.ok()) {
+    std::fprintf(stderr, "api_latency: %s\n", inst.error().ToString().c_str());
     return 1;
   }
   const std::string db_path =
@@ -69,13 +76,11 @@ int main(int argc, char** argv) {
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
   auto db = acquisition::Storage::Open(db_path);
   if (!db.ok()) return 1;
-  acquisition::PlanContext ctx;
-  ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51}};
-  ctx.axes = inst.axes;
-  ctx.image_width = ctx.image_height = 512;
+  const acquisition::PlanContext& ctx = inst->context;
   daemon::ControllerOptions co;
   co.engine.linear_limit_adu = 40000;
-  daemon::Controller controller(*inst.stages, *inst.camera, inst.meter.get(), **db, ctx, co);
+  daemon::Controller controller(*inst->stages, *inst->camera, inst->monitor.monitor.get(), **db,
+                                ctx, co);
   if (!controller.Start().ok()) return 1;
   const std::string token = daemon::NewToken();
   auto api = daemon::ApiServer::Start(

@@ -1,4 +1,4 @@
-// Errors as values (shared/DESIGN.md): fallible calls return Result<T>, holding either a T or an
+// Errors as values (docs/design.md): fallible calls return Result<T>, holding either a T or an
 // Error with a code and a message that a person can act on. Bugs (violated invariants) abort.
 // (std::expected would do; it needs C++23, and the project builds as C++20.)
 #pragma once

@@ -1,9 +1,6 @@
 #include "config/instrument_config.h"
 
 #include "config/toml_reader.h"
-#include "drivers/camera/aravis_camera.h"
-#include "drivers/monitor/scpi_power_meter.h"
-#include "drivers/monitor/usbtmc_socket.h"
 
 namespace gonio::config {
 
@@ -16,6 +13,175 @@ Status Bit(Reader& r, const toml::table& t, const char* key, std::uint32_t* out)
   return OkStatus();
 }
 
+// [camera.features]: the vendor's names for cooling, the shutter and the exposure status.
+Status ReadFeatures(Reader& r, const toml::table& k, devices::VendorFeatures& f) {
+  GONIO_TRY(r.Keys(
+      k, "camera.features",
+      {"temperature_selector", "temperature_selector_value", "temperature", "control_mode",
+       "control_on", "control_off", "setpoint", "setpoint_activate", "shutter", "shutter_open",
+       "shutter_closed", "status_selector", "status_selector_value", "status"}));
+  GONIO_TRY(r.String(k, "temperature_selector", &f.temperature_selector));
+  GONIO_TRY(r.String(k, "temperature_selector_value", &f.temperature_selector_value));
+  GONIO_TRY(r.String(k, "temperature", &f.temperature));
+  if (f.temperature.empty())
+    return r.Fail(k.get("temperature"), "'temperature' must name the camera's temperature feature");
+  GONIO_TRY(r.String(k, "control_mode", &f.control_mode));
+  GONIO_TRY(r.String(k, "control_on", &f.control_on));
+  GONIO_TRY(r.String(k, "control_off", &f.control_off));
+  GONIO_TRY(r.String(k, "setpoint", &f.setpoint));
+  GONIO_TRY(r.String(k, "setpoint_activate", &f.setpoint_activate));
+  GONIO_TRY(r.String(k, "shutter", &f.shutter));
+  GONIO_TRY(r.String(k, "shutter_open", &f.shutter_open));
+  GONIO_TRY(r.String(k, "shutter_closed", &f.shutter_closed));
+  GONIO_TRY(r.String(k, "status_selector", &f.status_selector));
+  GONIO_TRY(r.String(k, "status_selector_value", &f.status_selector_value));
+  GONIO_TRY(r.String(k, "status", &f.status));
+  return OkStatus();
+}
+
+// [camera]: address, format, region, buffers and retries, and its [camera.features].
+Status ReadCamera(Reader& r, const toml::table& t, InstrumentConfig& c) {
+  GONIO_TRY(r.Keys(
+      t, "camera",
+      {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning", "roi", "buffers",
+       "frame_timeout_s", "retries", "linear_limit_adu", "status_poll_s", "features"}));
+  devices::CameraSettings& s = c.camera;
+  GONIO_TRY(r.Bool(t, "enabled", &c.camera_enabled));
+  GONIO_TRY(r.String(t, "address", &s.address));
+  GONIO_TRY(r.String(t, "pixel_format", &s.pixel_format, {"Mono12", "Mono16"}));
+  GONIO_TRY(r.Number(t, "gain_db", &s.gain_db, 0, 48));
+  GONIO_TRY(r.Integer(t, "black_level", &s.black_level, -1, 65535));
+  GONIO_TRY(r.Integer(t, "binning", &s.binning, 1, 16));
+  GONIO_TRY(r.Integer(t, "buffers", &s.buffers, 2, 64));
+  GONIO_TRY(r.Integer(t, "retries", &s.retries, 0, 10));
+  GONIO_TRY(r.Number(t, "frame_timeout_s", &s.frame_timeout_s, 0.01, 600));
+  GONIO_TRY(r.Number(t, "linear_limit_adu", &s.linear_limit_adu, 100, 65535));
+  GONIO_TRY(r.Number(t, "status_poll_s", &s.status_poll_s, 1e-4, 1));
+  if (const toml::node* n = t.get("roi")) {
+    const toml::array* a = n->as_array();
+    if (a == nullptr || a->size() != 4 || !a->is_homogeneous<std::int64_t>())
+      return r.Fail(n, "'roi' must be [x, y, width, height] in integers");
+    s.roi_x = static_cast<int>(*(*a)[0].value<std::int64_t>());
+    s.roi_y = static_cast<int>(*(*a)[1].value<std::int64_t>());
+    s.roi_width = static_cast<int>(*(*a)[2].value<std::int64_t>());
+    s.roi_height = static_cast<int>(*(*a)[3].value<std::int64_t>());
+    if (s.roi_x < 0 || s.roi_y < 0 || s.roi_width < 0 || s.roi_height < 0)
+      return r.Fail(n, "'roi' values must be >= 0");
+  }
+  if (const toml::table* k = t["features"].as_table()) GONIO_TRY(ReadFeatures(r, *k, s.features));
+  return OkStatus();
+}
+
+// [stages.registers]: where the controller keeps what the driver uses.
+Status ReadRegisters(Reader& r, const toml::table& g, devices::StageRegisterProfile& p) {
+  GONIO_TRY(r.Keys(
+      g, "stages.registers",
+      {"direct_data", "operation_absolute", "current", "input_command", "output_status",
+       "present_alarm", "command_position", "alarm_reset", "in_home_bit", "in_stop_bit",
+       "out_home_end_bit", "out_ready_bit", "out_alarm_bit", "out_move_bit", "out_in_pos_bit"}));
+  GONIO_TRY(r.Integer(g, "direct_data", &p.direct_data, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "input_command", &p.input_command, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "output_status", &p.output_status, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "present_alarm", &p.present_alarm, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "command_position", &p.command_position, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "alarm_reset", &p.alarm_reset, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "operation_absolute", &p.operation_absolute, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "current", &p.current, 0, 1000));
+  GONIO_TRY(Bit(r, g, "in_home_bit", &p.in_home));
+  GONIO_TRY(Bit(r, g, "in_stop_bit", &p.in_stop));
+  GONIO_TRY(Bit(r, g, "out_home_end_bit", &p.out_home_end));
+  GONIO_TRY(Bit(r, g, "out_ready_bit", &p.out_ready));
+  GONIO_TRY(Bit(r, g, "out_alarm_bit", &p.out_alarm));
+  GONIO_TRY(Bit(r, g, "out_move_bit", &p.out_move));
+  GONIO_TRY(Bit(r, g, "out_in_pos_bit", &p.out_in_pos));
+  return OkStatus();
+}
+
+// [[stages.axis]]: each axis's unit id, gearing, travel limits and motion.
+Status ReadAxes(Reader& r, const toml::node& n, std::vector<devices::AxisSettings>& axes) {
+  const toml::array* list = n.as_array();
+  if (list == nullptr || list->empty()) return r.Fail(&n, "[[stages.axis]] must list axes");
+  std::set<std::string> names;
+  std::set<std::int64_t> ids;
+  for (const toml::node& item : *list) {
+    const toml::table* a = item.as_table();
+    if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
+    GONIO_TRY(r.Keys(*a, "stages.axis",
+                     {"name", "slave_id", "steps_per_degree", "degrees_at_zero", "min_deg",
+                      "max_deg", "backlash_overshoot_deg", "speed_deg_s", "acceleration_deg_s2",
+                      "tolerance_deg", "move_timeout_s", "home_timeout_s"}));
+    devices::AxisSettings ax;
+    if (a->get("name") == nullptr) return r.Fail(&item, "axis without 'name'");
+    GONIO_TRY(r.String(*a, "name", &ax.name, {"arm", "azimuth", "sample"}));
+    if (!names.insert(ax.name).second)
+      return r.Fail(a->get("name"), "axis '" + ax.name + "' configured twice");
+    std::int64_t id = static_cast<std::int64_t>(names.size());
+    GONIO_TRY(r.Integer(*a, "slave_id", &id, 1, 247));
+    if (!ids.insert(id).second)
+      return r.Fail(a->get("slave_id") ? a->get("slave_id") : &item,
+                    "slave_id " + std::to_string(id) + " given to two axes");
+    ax.slave_id = static_cast<int>(id);
+    GONIO_TRY(r.Number(*a, "steps_per_degree", &ax.steps_per_degree, 1e-3, 1e7));
+    GONIO_TRY(r.Number(*a, "degrees_at_zero", &ax.degrees_at_zero, -360, 360));
+    GONIO_TRY(r.Number(*a, "min_deg", &ax.min_deg, -720, 720));
+    GONIO_TRY(r.Number(*a, "max_deg", &ax.max_deg, -720, 720));
+    if (!(ax.min_deg < ax.max_deg)) return r.Fail(a, "min_deg must be below max_deg");
+    GONIO_TRY(r.Number(*a, "backlash_overshoot_deg", &ax.backlash_overshoot_deg, 0, 10));
+    GONIO_TRY(r.Number(*a, "speed_deg_s", &ax.speed_deg_s, 1e-3, 1000));
+    GONIO_TRY(r.Number(*a, "acceleration_deg_s2", &ax.acceleration_deg_s2, 1e-3, 1e5));
+    GONIO_TRY(r.Number(*a, "tolerance_deg", &ax.tolerance_deg, 1e-6, 10));
+    GONIO_TRY(r.Number(*a, "move_timeout_s", &ax.move_timeout_s, 0.1, 3600));
+    GONIO_TRY(r.Number(*a, "home_timeout_s", &ax.home_timeout_s, 0.1, 3600));
+    axes.push_back(ax);
+  }
+  return OkStatus();
+}
+
+// [stages]: the Modbus link, then its registers and axes.
+Status ReadStages(Reader& r, const toml::table& t, InstrumentConfig& c) {
+  GONIO_TRY(r.Keys(t, "stages",
+                   {"link", "host", "port", "device", "baud", "parity", "data_bits", "stop_bits",
+                    "response_timeout_s", "retries", "registers", "axis"}));
+  devices::ModbusLink& l = c.stage_link;
+  GONIO_TRY(r.String(t, "link", &l.kind, {"rtu", "tcp"}));
+  GONIO_TRY(r.String(t, "host", &l.host));
+  GONIO_TRY(r.Integer(t, "port", &l.port, 1, 65535));
+  GONIO_TRY(r.String(t, "device", &l.device));
+  if (l.kind == "rtu" && l.device.empty())
+    return r.Fail(t.get("link"), "an RTU link needs 'device' (the serial port)");
+  GONIO_TRY(r.Integer(t, "baud", &l.baud, 1200, 4'000'000));
+  std::string parity = "even";
+  GONIO_TRY(r.String(t, "parity", &parity, {"even", "none", "odd"}));
+  l.parity = parity == "even" ? 'E' : parity == "odd" ? 'O' : 'N';
+  GONIO_TRY(r.Integer(t, "data_bits", &l.data_bits, 7, 8));
+  GONIO_TRY(r.Integer(t, "stop_bits", &l.stop_bits, 1, 2));
+  GONIO_TRY(r.Number(t, "response_timeout_s", &l.response_timeout_s, 0.01, 30));
+  GONIO_TRY(r.Integer(t, "retries", &l.retries, 0, 20));
+  if (const toml::table* g = t["registers"].as_table())
+    GONIO_TRY(ReadRegisters(r, *g, c.registers));
+  if (const toml::node* n = t.get("axis")) GONIO_TRY(ReadAxes(r, *n, c.axes));
+  return OkStatus();
+}
+
+// [monitor]: the source monitor's transport and settings.
+Status ReadMonitor(Reader& r, const toml::table& t, MonitorConfig& m) {
+  m.enabled = true;
+  GONIO_TRY(r.Keys(t, "monitor",
+                   {"enabled", "transport", "vendor_id", "product_id", "serial", "host", "port",
+                    "wavelength_nm", "averaging", "timeout_ms"}));
+  GONIO_TRY(r.Bool(t, "enabled", &m.enabled));
+  GONIO_TRY(r.String(t, "transport", &m.transport, {"socket", "usb"}));
+  GONIO_TRY(r.Integer(t, "vendor_id", &m.usb.vendor_id, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(t, "product_id", &m.usb.product_id, 0, 0xFFFF));
+  GONIO_TRY(r.String(t, "serial", &m.usb.serial));
+  GONIO_TRY(r.String(t, "host", &m.host));
+  GONIO_TRY(r.Integer(t, "port", &m.port, 1, 65535));
+  GONIO_TRY(r.Number(t, "wavelength_nm", &m.wavelength_nm, 200, 2000));
+  GONIO_TRY(r.Integer(t, "averaging", &m.averaging, 1, 100000));
+  GONIO_TRY(r.Integer(t, "timeout_ms", &m.timeout_ms, 10, 60000));
+  return OkStatus();
+}
+
 }  // namespace
 
 Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
@@ -25,193 +191,11 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   Reader r(path);
   InstrumentConfig c;
   GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor"}));
-
-  if (const toml::table* t = root["camera"].as_table()) {
-    GONIO_TRY(r.Keys(*t, "camera",
-                     {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning",
-                      "roi", "buffers", "frame_timeout_s", "retries", "linear_limit_adu",
-                      "status_poll_s", "features"}));
-    drivers::CameraSettings& s = c.camera;
-    GONIO_TRY(r.Bool(*t, "enabled", &c.camera_enabled));
-    GONIO_TRY(r.String(*t, "address", &s.address));
-    GONIO_TRY(r.String(*t, "pixel_format", &s.pixel_format, {"Mono12", "Mono16"}));
-    GONIO_TRY(r.Number(*t, "gain_db", &s.gain_db, 0, 48));
-    GONIO_TRY(r.Integer(*t, "black_level", &s.black_level, -1, 65535));
-    GONIO_TRY(r.Integer(*t, "binning", &s.binning, 1, 16));
-    GONIO_TRY(r.Integer(*t, "buffers", &s.buffers, 2, 64));
-    GONIO_TRY(r.Integer(*t, "retries", &s.retries, 0, 10));
-    GONIO_TRY(r.Number(*t, "frame_timeout_s", &s.frame_timeout_s, 0.01, 600));
-    GONIO_TRY(r.Number(*t, "linear_limit_adu", &s.linear_limit_adu, 100, 65535));
-    GONIO_TRY(r.Number(*t, "status_poll_s", &s.status_poll_s, 1e-4, 1));
-    if (const toml::node* n = t->get("roi")) {
-      const toml::array* a = n->as_array();
-      if (a == nullptr || a->size() != 4 || !a->is_homogeneous<std::int64_t>())
-        return r.Fail(n, "'roi' must be [x, y, width, height] in integers");
-      s.roi_x = static_cast<int>(*(*a)[0].value<std::int64_t>());
-      s.roi_y = static_cast<int>(*(*a)[1].value<std::int64_t>());
-      s.roi_width = static_cast<int>(*(*a)[2].value<std::int64_t>());
-      s.roi_height = static_cast<int>(*(*a)[3].value<std::int64_t>());
-      if (s.roi_x < 0 || s.roi_y < 0 || s.roi_width < 0 || s.roi_height < 0)
-        return r.Fail(n, "'roi' values must be >= 0");
-    }
-    if (const toml::table* k = (*t)["features"].as_table()) {
-      drivers::VendorFeatures& f = s.features;
-      GONIO_TRY(r.Keys(
-          *k, "camera.features",
-          {"temperature_selector", "temperature_selector_value", "temperature", "control_mode",
-           "control_on", "control_off", "setpoint", "setpoint_activate", "shutter", "shutter_open",
-           "shutter_closed", "status_selector", "status_selector_value", "status"}));
-      GONIO_TRY(r.String(*k, "temperature_selector", &f.temperature_selector));
-      GONIO_TRY(r.String(*k, "temperature_selector_value", &f.temperature_selector_value));
-      GONIO_TRY(r.String(*k, "temperature", &f.temperature));
-      if (f.temperature.empty())
-        return r.Fail(k->get("temperature"),
-                      "'temperature' must name the camera's temperature feature");
-      GONIO_TRY(r.String(*k, "control_mode", &f.control_mode));
-      GONIO_TRY(r.String(*k, "control_on", &f.control_on));
-      GONIO_TRY(r.String(*k, "control_off", &f.control_off));
-      GONIO_TRY(r.String(*k, "setpoint", &f.setpoint));
-      GONIO_TRY(r.String(*k, "setpoint_activate", &f.setpoint_activate));
-      GONIO_TRY(r.String(*k, "shutter", &f.shutter));
-      GONIO_TRY(r.String(*k, "shutter_open", &f.shutter_open));
-      GONIO_TRY(r.String(*k, "shutter_closed", &f.shutter_closed));
-      GONIO_TRY(r.String(*k, "status_selector", &f.status_selector));
-      GONIO_TRY(r.String(*k, "status_selector_value", &f.status_selector_value));
-      GONIO_TRY(r.String(*k, "status", &f.status));
-    }
-  }
-
-  if (const toml::table* t = root["stages"].as_table()) {
-    GONIO_TRY(r.Keys(*t, "stages",
-                     {"link", "host", "port", "device", "baud", "parity", "data_bits", "stop_bits",
-                      "response_timeout_s", "retries", "registers", "axis"}));
-    drivers::ModbusLink& l = c.stage_link;
-    GONIO_TRY(r.String(*t, "link", &l.kind, {"rtu", "tcp"}));
-    GONIO_TRY(r.String(*t, "host", &l.host));
-    GONIO_TRY(r.Integer(*t, "port", &l.port, 1, 65535));
-    GONIO_TRY(r.String(*t, "device", &l.device));
-    if (l.kind == "rtu" && l.device.empty())
-      return r.Fail(t->get("link"), "an RTU link needs 'device' (the serial port)");
-    GONIO_TRY(r.Integer(*t, "baud", &l.baud, 1200, 4'000'000));
-    std::string parity = "even";
-    GONIO_TRY(r.String(*t, "parity", &parity, {"even", "none", "odd"}));
-    l.parity = parity == "even" ? 'E' : parity == "odd" ? 'O' : 'N';
-    GONIO_TRY(r.Integer(*t, "data_bits", &l.data_bits, 7, 8));
-    GONIO_TRY(r.Integer(*t, "stop_bits", &l.stop_bits, 1, 2));
-    GONIO_TRY(r.Number(*t, "response_timeout_s", &l.response_timeout_s, 0.01, 30));
-    GONIO_TRY(r.Integer(*t, "retries", &l.retries, 0, 20));
-    if (const toml::table* g = (*t)["registers"].as_table()) {
-      drivers::StageRegisterProfile& p = c.registers;
-      GONIO_TRY(r.Keys(*g, "stages.registers",
-                       {"direct_data", "operation_absolute", "current", "input_command",
-                        "output_status", "present_alarm", "command_position", "alarm_reset",
-                        "in_home_bit", "in_stop_bit", "out_home_end_bit", "out_ready_bit",
-                        "out_alarm_bit", "out_move_bit", "out_in_pos_bit"}));
-      GONIO_TRY(r.Integer(*g, "direct_data", &p.direct_data, 0, 0xFFFF));
-      GONIO_TRY(r.Integer(*g, "input_command", &p.input_command, 0, 0xFFFF));
-      GONIO_TRY(r.Integer(*g, "output_status", &p.output_status, 0, 0xFFFF));
-      GONIO_TRY(r.Integer(*g, "present_alarm", &p.present_alarm, 0, 0xFFFF));
-      GONIO_TRY(r.Integer(*g, "command_position", &p.command_position, 0, 0xFFFF));
-      GONIO_TRY(r.Integer(*g, "alarm_reset", &p.alarm_reset, 0, 0xFFFF));
-      GONIO_TRY(r.Integer(*g, "operation_absolute", &p.operation_absolute, 0, 0xFFFF));
-      GONIO_TRY(r.Integer(*g, "current", &p.current, 0, 1000));
-      GONIO_TRY(Bit(r, *g, "in_home_bit", &p.in_home));
-      GONIO_TRY(Bit(r, *g, "in_stop_bit", &p.in_stop));
-      GONIO_TRY(Bit(r, *g, "out_home_end_bit", &p.out_home_end));
-      GONIO_TRY(Bit(r, *g, "out_ready_bit", &p.out_ready));
-      GONIO_TRY(Bit(r, *g, "out_alarm_bit", &p.out_alarm));
-      GONIO_TRY(Bit(r, *g, "out_move_bit", &p.out_move));
-      GONIO_TRY(Bit(r, *g, "out_in_pos_bit", &p.out_in_pos));
-    }
-    if (const toml::node* n = t->get("axis")) {
-      const toml::array* list = n->as_array();
-      if (list == nullptr || list->empty()) return r.Fail(n, "[[stages.axis]] must list axes");
-      std::set<std::string> names;
-      std::set<std::int64_t> ids;
-      for (const toml::node& item : *list) {
-        const toml::table* a = item.as_table();
-        if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
-        GONIO_TRY(r.Keys(*a, "stages.axis",
-                         {"name", "slave_id", "steps_per_degree", "degrees_at_zero", "min_deg",
-                          "max_deg", "backlash_overshoot_deg", "speed_deg_s", "acceleration_deg_s2",
-                          "tolerance_deg", "move_timeout_s", "home_timeout_s"}));
-        drivers::AxisSettings ax;
-        if (a->get("name") == nullptr) return r.Fail(&item, "axis without 'name'");
-        GONIO_TRY(r.String(*a, "name", &ax.name, {"arm", "azimuth", "sample"}));
-        if (!names.insert(ax.name).second)
-          return r.Fail(a->get("name"), "axis '" + ax.name + "' configured twice");
-        std::int64_t id = static_cast<std::int64_t>(names.size());
-        GONIO_TRY(r.Integer(*a, "slave_id", &id, 1, 247));
-        if (!ids.insert(id).second)
-          return r.Fail(a->get("slave_id") ? a->get("slave_id") : &item,
-                        "slave_id " + std::to_string(id) + " given to two axes");
-        ax.slave_id = static_cast<int>(id);
-        GONIO_TRY(r.Number(*a, "steps_per_degree", &ax.steps_per_degree, 1e-3, 1e7));
-        GONIO_TRY(r.Number(*a, "degrees_at_zero", &ax.degrees_at_zero, -360, 360));
-        GONIO_TRY(r.Number(*a, "min_deg", &ax.min_deg, -720, 720));
-        GONIO_TRY(r.Number(*a, "max_deg", &ax.max_deg, -720, 720));
-        if (!(ax.min_deg < ax.max_deg)) return r.Fail(a, "min_deg must be below max_deg");
-        GONIO_TRY(r.Number(*a, "backlash_overshoot_deg", &ax.backlash_overshoot_deg, 0, 10));
-        GONIO_TRY(r.Number(*a, "speed_deg_s", &ax.speed_deg_s, 1e-3, 1000));
-        GONIO_TRY(r.Number(*a, "acceleration_deg_s2", &ax.acceleration_deg_s2, 1e-3, 1e5));
-        GONIO_TRY(r.Number(*a, "tolerance_deg", &ax.tolerance_deg, 1e-6, 10));
-        GONIO_TRY(r.Number(*a, "move_timeout_s", &ax.move_timeout_s, 0.1, 3600));
-        GONIO_TRY(r.Number(*a, "home_timeout_s", &ax.home_timeout_s, 0.1, 3600));
-        c.axes.push_back(ax);
-      }
-    }
-  }
+  if (const toml::table* t = root["camera"].as_table()) GONIO_TRY(ReadCamera(r, *t, c));
+  if (const toml::table* t = root["stages"].as_table()) GONIO_TRY(ReadStages(r, *t, c));
   if (c.axes.empty()) return r.Fail(nullptr, "no [[stages.axis]]: the instrument needs its axes");
-
-  if (const toml::table* t = root["monitor"].as_table()) {
-    MonitorConfig& m = c.monitor;
-    m.enabled = true;
-    GONIO_TRY(r.Keys(*t, "monitor",
-                     {"enabled", "transport", "vendor_id", "product_id", "serial", "host", "port",
-                      "wavelength_nm", "averaging", "timeout_ms"}));
-    GONIO_TRY(r.Bool(*t, "enabled", &m.enabled));
-    GONIO_TRY(r.String(*t, "transport", &m.transport, {"socket", "usb"}));
-    GONIO_TRY(r.Integer(*t, "vendor_id", &m.usb.vendor_id, 0, 0xFFFF));
-    GONIO_TRY(r.Integer(*t, "product_id", &m.usb.product_id, 0, 0xFFFF));
-    GONIO_TRY(r.String(*t, "serial", &m.usb.serial));
-    GONIO_TRY(r.String(*t, "host", &m.host));
-    GONIO_TRY(r.Integer(*t, "port", &m.port, 1, 65535));
-    GONIO_TRY(r.Number(*t, "wavelength_nm", &m.wavelength_nm, 200, 2000));
-    GONIO_TRY(r.Integer(*t, "averaging", &m.averaging, 1, 100000));
-    GONIO_TRY(r.Integer(*t, "timeout_ms", &m.timeout_ms, 10, 60000));
-  }
+  if (const toml::table* t = root["monitor"].as_table()) GONIO_TRY(ReadMonitor(r, *t, c.monitor));
   return c;
-}
-
-Result<std::unique_ptr<drivers::Camera>> OpenCamera(const InstrumentConfig& c) {
-  if (!c.camera_enabled) return InvalidArgument("the camera is disabled in the configuration");
-  auto cam = drivers::AravisCamera::Open(c.camera);
-  if (!cam.ok()) return cam.error();
-  return std::unique_ptr<drivers::Camera>(std::move(cam).value());
-}
-
-Result<std::unique_ptr<drivers::StageController>> OpenStages(const InstrumentConfig& c) {
-  auto st = drivers::ModbusStageController::Open(c.stage_link, c.axes, c.registers);
-  if (!st.ok()) return st.error();
-  return std::unique_ptr<drivers::StageController>(std::move(st).value());
-}
-
-Result<OpenedMonitor> OpenMonitor(const InstrumentConfig& c) {
-  OpenedMonitor m;
-  if (c.monitor.transport == "socket") {
-    auto t = drivers::UsbTmcSocketTransport::Connect(c.monitor.host, c.monitor.port);
-    if (!t.ok()) return t.error();
-    m.transport = std::move(t).value();
-  } else {
-    auto t = drivers::LibUsbTmcTransport::Open(c.monitor.usb);
-    if (!t.ok()) return t.error();
-    m.transport = std::move(t).value();
-  }
-  auto meter = std::make_unique<drivers::ScpiPowerMeter>(*m.transport, c.monitor.timeout_ms);
-  if (Status s = meter->SetWavelengthNm(c.monitor.wavelength_nm); !s.ok()) return s.error();
-  if (Status s = meter->SetAveraging(c.monitor.averaging); !s.ok()) return s.error();
-  m.monitor = std::move(meter);
-  return m;
 }
 
 }  // namespace gonio::config

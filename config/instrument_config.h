@@ -3,26 +3,24 @@
 // controller (Modbus TCP or RTU link, register profile, each axis's gearing, limits and motion),
 // and the optional source monitor (USB ids, or gonio-sim's loopback socket). The example with
 // every key: config/instrument.toml, which drives the simulated instrument of config/sim.toml.
-// Errors name the file and line; unknown keys are refused.
+// Errors name the file and line; unknown keys are refused. Plain data: opening the devices it
+// describes is the daemon's (daemon/instrument/instrument.h), the one place that names backends.
 #pragma once
 
-#include <memory>
 #include <string>
 #include <vector>
 
 #include "common/result.h"
-#include "drivers/camera/camera.h"
-#include "drivers/monitor/libusb_transport.h"
-#include "drivers/monitor/source_monitor.h"
-#include "drivers/monitor/usbtmc_transport.h"
-#include "drivers/stage/modbus_stage.h"
+#include "devices/camera.h"
+#include "devices/stage.h"
+#include "devices/usbtmc_transport.h"
 
 namespace gonio::config {
 
 struct MonitorConfig {
   bool enabled = false;
   std::string transport = "usb";  // usb | socket (gonio-sim's meter)
-  drivers::UsbDeviceId usb;
+  devices::UsbDeviceId usb;
   std::string host = "127.0.0.1";
   int port = 5021;
   double wavelength_nm = 633;
@@ -32,26 +30,13 @@ struct MonitorConfig {
 
 struct InstrumentConfig {
   bool camera_enabled = true;
-  drivers::CameraSettings camera;
-  drivers::ModbusLink stage_link;
-  drivers::StageRegisterProfile registers;
-  std::vector<drivers::AxisSettings> axes;
+  devices::CameraSettings camera;
+  devices::ModbusLink stage_link;
+  devices::StageRegisterProfile registers;
+  std::vector<devices::AxisSettings> axes;
   MonitorConfig monitor;
 };
 
 Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path);
-
-// Opening the configured devices with their real backends: what the daemon and gonio-hw do.
-// Nothing else names a concrete backend.
-Result<std::unique_ptr<drivers::Camera>> OpenCamera(const InstrumentConfig& c);
-Result<std::unique_ptr<drivers::StageController>> OpenStages(const InstrumentConfig& c);
-
-// A monitor and the transport under it, applied the config's wavelength and averaging.
-struct OpenedMonitor {
-  std::unique_ptr<drivers::UsbTmcTransport> transport;
-  std::unique_ptr<drivers::SourceMonitor> monitor;
-};
-// Precondition: c.monitor.enabled.
-Result<OpenedMonitor> OpenMonitor(const InstrumentConfig& c);
 
 }  // namespace gonio::config

@@ -319,15 +319,13 @@ std::optional<double> EstimateAlphaFromHalfWidth(std::span<const Sample> samples
   return std::tan(theta_h) / std::sqrt(std::log(2.0));
 }
 
-Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
-  if (Status s = o.Validate(); !s) return s.error();
-  if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
+namespace {
 
-  // Geometry at the starting (or fixed) eta, computed once for every sample.
-  std::vector<FixedGeometry> geometry;
-  geometry.reserve(samples.size());
-  for (const Sample& s : samples) geometry.push_back(PrecomputeGeometry(s.light, s.view, o.eta));
-
+// Starting points for the local fits: the caller's, the half-width estimate, then the local
+// minima of a scan of the width on a log grid of alpha-equivalent (k at its optimum for each
+// width), best first.
+std::vector<ScanPoint> Starts(std::span<const Sample> samples,
+                              std::span<const FixedGeometry> geometry, const FitOptions& o) {
   // 1. Scan the width on a log grid of alpha-equivalent (k at its optimum for each width).
   std::vector<ScanPoint> scan;
   for (int k = 0; o.automatic_starts && k < o.scan_points; ++k) {
@@ -335,7 +333,6 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
     if (auto w = WidthFromAlphaEquivalent(o.model.family, a))
       scan.push_back(EvaluateWidth(samples, geometry, o.model, *w));
   }
-  // 2. Starts: the caller's, the half-width estimate, then local minima of the scan, best first.
   std::vector<ScanPoint> starts;
   auto add_start = [&](double width) {
     if (!(width > 0) || !std::isfinite(width)) return;
@@ -357,6 +354,104 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   std::sort(minima.begin(), minima.end(),
             [](const ScanPoint& a, const ScanPoint& b) { return a.cost < b.cost; });
   for (const auto& m : minima) add_start(m.width);
+  return starts;
+}
+
+// Residuals, chi2 and the information criteria at the solution.
+void FillStatistics(std::span<const Sample> samples, std::span<const FixedGeometry> geometry,
+                    const FitOptions& o, FitSummary& out) {
+  // Predictions at the solution: the fast path when eta stayed where the geometry was computed.
+  std::vector<double> predicted(samples.size());
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    predicted[i] = o.fit_eta ? Predict(out, samples[i])
+                   : geometry[i].factor > 0
+                       ? out.scale.value * geometry[i].factor *
+                             DTimesShadowing(o.model, geometry[i], out.width.value)
+                       : 0.0;
+  out.residuals.reserve(samples.size());
+  out.chi2 = 0;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const double r = (predicted[i] - samples[i].value) / samples[i].sigma;
+    out.residuals.push_back(r);
+    out.chi2 += r * r;
+  }
+  out.reduced_chi2 = out.chi2 / (out.n_points - out.n_params);
+  out.aic = out.chi2 + 2.0 * out.n_params;
+  out.bic = out.chi2 + out.n_params * std::log(double(out.n_points));
+  out.points_in_lobe = PointsInLobe(samples, predicted);
+}
+
+// The parameters' sigmas from the covariance of (log width, log k[, eta raw]) by the delta
+// method. False when the covariance is singular or not positive.
+bool FillUncertainties(LocalFit& winner, const FitOptions& o, FitSummary& out) {
+  std::vector<double*> blocks = {winner.x + 0, winner.x + 1};
+  if (o.fit_eta) blocks.push_back(winner.x + 2);
+  Eigen::MatrixXd c;
+  bool cov_ok = Covariance(*winner.problem, blocks, &c);
+  // Inflate when the residuals scatter more than the sigmas say. With a robust loss the outliers
+  // it down-weights would dominate chi2, so the scatter is measured robustly (1.4826 MAD).
+  double scatter2 = out.reduced_chi2;
+  if (o.loss != Loss::kNone) {
+    std::vector<double> a;
+    for (double r : out.residuals) a.push_back(std::abs(r));
+    std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+    scatter2 = std::pow(1.4826 * a[a.size() / 2], 2);
+  }
+  const double inflate = o.inflate_by_reduced_chi2 ? std::max(1.0, scatter2) : 1.0;
+  const double var_lw = cov_ok ? c(0, 0) * inflate : 0, var_lk = cov_ok ? c(1, 1) * inflate : 0;
+  cov_ok = cov_ok && var_lw > 0 && var_lk > 0;
+  if (cov_ok) {
+    out.width.sigma = out.width.value * std::sqrt(var_lw);
+    out.scale.sigma = out.scale.value * std::sqrt(var_lk);
+    if (o.fit_eta) {
+      const double var = c(2, 2) * inflate;
+      const double u = (out.eta.value - kEtaMin) / kEtaSpan;
+      out.eta.sigma = kEtaSpan * u * (1 - u) * std::sqrt(std::max(var, 0.0));
+    }
+  }
+
+  return cov_ok;
+}
+
+// The fit's status and message: unconstrained, converged, or a poor fit by its chi2.
+void Judge(bool cov_ok, FitSummary& out) {
+  const int dof = out.n_points - out.n_params;
+  std::ostringstream why;
+  if (!cov_ok)
+    why << "the covariance is singular: the data do not constrain every parameter";
+  else if (out.points_in_lobe < 3)
+    why << "only " << out.points_in_lobe
+        << " sample(s) lie inside the fitted lobe's half maximum: sample the peak more finely "
+           "to determine the width";
+  else if (out.width.sigma > 0.5 * out.width.value)
+    why << "the width's relative uncertainty is " << 100 * out.width.sigma / out.width.value
+        << " %: the data barely constrain it";
+  out.message = why.str();
+  out.status = out.message.empty() ? FitStatus::kConverged : FitStatus::kUnconstrained;
+  // Goodness of fit: P(chi2_dof >= chi2). With honest sigmas a correct model gives ~U(0, 1).
+  const double p_value = boost::math::gamma_q(0.5 * dof, 0.5 * out.chi2);
+  if (out.status == FitStatus::kConverged && p_value < 1e-6) {
+    std::ostringstream poor;
+    poor << "the model does not describe the data: chi2/dof = " << out.reduced_chi2 << " over "
+         << dof << " degrees of freedom (p = " << p_value
+         << "); the width is not a measurement of the surface";
+    out.message = poor.str();
+    out.status = FitStatus::kPoorFit;
+  }
+}
+
+}  // namespace
+
+Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
+  if (Status s = o.Validate(); !s) return s.error();
+  if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
+
+  // Geometry at the starting (or fixed) eta, computed once for every sample.
+  std::vector<FixedGeometry> geometry;
+  geometry.reserve(samples.size());
+  for (const Sample& s : samples) geometry.push_back(PrecomputeGeometry(s.light, s.view, o.eta));
+
+  std::vector<ScanPoint> starts = Starts(samples, geometry, o);
   if (starts.empty())
     return Error{ErrorCode::kNumerical,
                  "the model is zero at every sample for every width tried: are the light and "
@@ -392,76 +487,9 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   out.eta.value = o.fit_eta ? EtaFromRaw(best.x[2]) : o.eta;
   out.alpha_equivalent = AlphaEquivalent(o.model.family, out.width.value);
   out.iterations = best.iterations;
-  // Predictions at the solution: the fast path when eta stayed where the geometry was computed.
-  std::vector<double> predicted(samples.size());
-  for (std::size_t i = 0; i < samples.size(); ++i)
-    predicted[i] = o.fit_eta ? Predict(out, samples[i])
-                   : geometry[i].factor > 0
-                       ? out.scale.value * geometry[i].factor *
-                             DTimesShadowing(o.model, geometry[i], out.width.value)
-                       : 0.0;
-  out.residuals.reserve(samples.size());
-  out.chi2 = 0;
-  for (std::size_t i = 0; i < samples.size(); ++i) {
-    const double r = (predicted[i] - samples[i].value) / samples[i].sigma;
-    out.residuals.push_back(r);
-    out.chi2 += r * r;
-  }
-  const int dof = out.n_points - out.n_params;
-  out.reduced_chi2 = out.chi2 / dof;
-  out.aic = out.chi2 + 2.0 * out.n_params;
-  out.bic = out.chi2 + out.n_params * std::log(double(out.n_points));
-  out.points_in_lobe = PointsInLobe(samples, predicted);
-
-  // Covariance of (log width, log k[, eta raw]), then the delta method.
-  std::vector<double*> blocks = {winner->x + 0, winner->x + 1};
-  if (o.fit_eta) blocks.push_back(winner->x + 2);
-  Eigen::MatrixXd c;
-  bool cov_ok = Covariance(*winner->problem, blocks, &c);
-  // Inflate when the residuals scatter more than the sigmas say. With a robust loss the outliers
-  // it down-weights would dominate chi2, so the scatter is measured robustly (1.4826 MAD).
-  double scatter2 = out.reduced_chi2;
-  if (o.loss != Loss::kNone) {
-    std::vector<double> a;
-    for (double r : out.residuals) a.push_back(std::abs(r));
-    std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
-    scatter2 = std::pow(1.4826 * a[a.size() / 2], 2);
-  }
-  const double inflate = o.inflate_by_reduced_chi2 ? std::max(1.0, scatter2) : 1.0;
-  const double var_lw = cov_ok ? c(0, 0) * inflate : 0, var_lk = cov_ok ? c(1, 1) * inflate : 0;
-  cov_ok = cov_ok && var_lw > 0 && var_lk > 0;
-  if (cov_ok) {
-    out.width.sigma = out.width.value * std::sqrt(var_lw);
-    out.scale.sigma = out.scale.value * std::sqrt(var_lk);
-    if (o.fit_eta) {
-      const double var = c(2, 2) * inflate;
-      const double u = (out.eta.value - kEtaMin) / kEtaSpan;
-      out.eta.sigma = kEtaSpan * u * (1 - u) * std::sqrt(std::max(var, 0.0));
-    }
-  }
-
-  std::ostringstream why;
-  if (!cov_ok)
-    why << "the covariance is singular: the data do not constrain every parameter";
-  else if (out.points_in_lobe < 3)
-    why << "only " << out.points_in_lobe
-        << " sample(s) lie inside the fitted lobe's half maximum: sample the peak more finely "
-           "to determine the width";
-  else if (out.width.sigma > 0.5 * out.width.value)
-    why << "the width's relative uncertainty is " << 100 * out.width.sigma / out.width.value
-        << " %: the data barely constrain it";
-  out.message = why.str();
-  out.status = out.message.empty() ? FitStatus::kConverged : FitStatus::kUnconstrained;
-  // Goodness of fit: P(chi2_dof >= chi2). With honest sigmas a correct model gives ~U(0, 1).
-  const double p_value = boost::math::gamma_q(0.5 * dof, 0.5 * out.chi2);
-  if (out.status == FitStatus::kConverged && p_value < 1e-6) {
-    std::ostringstream poor;
-    poor << "the model does not describe the data: chi2/dof = " << out.reduced_chi2 << " over "
-         << dof << " degrees of freedom (p = " << p_value
-         << "); the width is not a measurement of the surface";
-    out.message = poor.str();
-    out.status = FitStatus::kPoorFit;
-  }
+  FillStatistics(samples, geometry, o, out);
+  const bool cov_ok = FillUncertainties(*winner, o, out);
+  Judge(cov_ok, out);
   return out;
 }
 

@@ -37,7 +37,7 @@ enum class Derivatives { kAutomatic, kNumeric };
 
 struct FitOptions {
   ModelSpec model;
-  double eta = 1.51;  // fixed value, or the start when fit_eta (soda-lime, REFERENCE.md)
+  double eta = 1.51;  // fixed value, or the start when fit_eta (soda-lime, docs/reference.md)
   bool fit_eta = false;
   Loss loss = Loss::kNone;
   double loss_scale = 3.0;  // robust loss scale, in units of sigma

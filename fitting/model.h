@@ -1,5 +1,5 @@
-// The measurement model the fitter fits: S(l, v) = k f(l, v) |cos theta_l| (REFERENCE.md section
-// 1), for the model families of Walter 2007 (Beckmann, GGX, Phong) and Sun 2008.
+// The measurement model the fitter fits: S(l, v) = k f(l, v) |cos theta_l| (docs/reference.md
+// section 1), for the model families of Walter 2007 (Beckmann, GGX, Phong) and Sun 2008.
 //
 // Each family has one width parameter, in its own unit:
 //   Beckmann, GGX: alpha (slope-like, > 0)      Phong: exponent alpha_p (> 0)

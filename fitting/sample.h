@@ -10,7 +10,7 @@
 
 namespace gonio::fitting {
 
-// A transmission sample: S(l, v) = k f_t(l, v) |cos theta_l| (REFERENCE.md section 1).
+// A transmission sample: S(l, v) = k f_t(l, v) |cos theta_l| (docs/reference.md section 1).
 struct Sample {
   optics::Vec3<double> light;  // unit; z > 0 (air side), pointing from the sample to the source
   optics::Vec3<double> view;   // unit; z < 0 (glass side), pointing from the sample to the camera

@@ -20,7 +20,7 @@ cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
 [[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene sweep api)
-# Debian's matplotlib/scipy are installed for the system interpreter (DESIGN.md, Python helpers).
+# Debian's matplotlib/scipy are installed for the system interpreter (docs/design.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
   case "$part" in

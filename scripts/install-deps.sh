@@ -8,14 +8,14 @@ packages=(
   # toolchain and test/bench frameworks
   build-essential cmake pkg-config git clang-format file
   libgtest-dev libgmock-dev libbenchmark-dev
-  # the hardware and science stack (DESIGN.md)
+  # the hardware and science stack (docs/design.md)
   libaravis-dev aravis-tools libmodbus-dev libusb-1.0-0-dev mbpoll
   libopencv-dev libceres-dev libsqlite3-dev sqlite3
   # config parsing, JSON, CLI, logging, numerics
   libtomlplusplus-dev nlohmann-json3-dev libcli11-dev libspdlog-dev libboost-dev
   # the daemon: its local HTTP API (server and gonioctl client) and systemd readiness
   libcpp-httplib-dev libsystemd-dev
-  # chart scripts and benchmark peers run with /usr/bin/python3 (DESIGN.md, Python helpers)
+  # chart scripts and benchmark peers run with /usr/bin/python3 (docs/design.md, Python helpers)
   python3 python3-numpy python3-scipy python3-matplotlib
 )
 

@@ -1,4 +1,4 @@
-// Simulated time (shared/DESIGN.md): devices read one injectable clock, so tests run fast and
+// Simulated time (docs/design.md): devices read one injectable clock, so tests run fast and
 // deterministic (ManualClock), and the demo runs in real time or faster (ScaledClock), with all
 // devices consistent with each other either way.
 #pragma once

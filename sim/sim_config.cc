@@ -28,6 +28,88 @@ StageAngles AnglesFromSteps(const std::vector<AxisConfig>& axes, const std::vect
   return a;
 }
 
+SimConfig TwoAxisConfig(double clock_speed) {
+  SimConfig c;
+  c.clock_speed = clock_speed;
+  c.modbus_port = 0;
+  c.monitor_port = 0;
+  AxisConfig sample{
+      .role = "sample", .steps_per_degree = 1000, .degrees_at_zero = 0, .options = {}};
+  sample.options.min_steps = -90'000;
+  sample.options.max_steps = 90'000;
+  AxisConfig arm{.role = "arm", .steps_per_degree = 1000, .degrees_at_zero = 180, .options = {}};
+  arm.options.min_steps = -180'000;  // 0 deg
+  arm.options.max_steps = 180'000;   // 360 deg
+  c.axes = {sample, arm};
+  return c;
+}
+
+namespace {
+
+// One [[stages.axis]]: its role (each once), gearing, soft limits, switches and backlash.
+Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::string>& roles) {
+  const toml::table* a = item.as_table();
+  if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
+  AxisConfig ax;
+  GONIO_TRY(
+      r.Keys(*a, "stages.axis",
+             {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps", "settle_s",
+              "limit_switches", "limit_min_steps", "limit_max_steps", "backlash_steps"}));
+  if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
+  GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth"}));
+  if (!roles.insert(ax.role).second) {
+    return r.Fail(a->get("role"), "role '" + ax.role + "' given to two axes");
+  }
+  GONIO_TRY(r.Number(*a, "steps_per_degree", &ax.steps_per_degree, 1e-3, 1e7));
+  GONIO_TRY(r.Number(*a, "degrees_at_zero", &ax.degrees_at_zero, -360, 360));
+  GONIO_TRY(r.Integer(*a, "min_steps", &ax.options.min_steps, INT32_MIN, INT32_MAX));
+  GONIO_TRY(r.Integer(*a, "max_steps", &ax.options.max_steps, INT32_MIN, INT32_MAX));
+  if (ax.options.min_steps >= ax.options.max_steps)
+    return r.Fail(a, "min_steps must be below max_steps");
+  GONIO_TRY(r.Number(*a, "settle_s", &ax.options.settle_s, 0, 10));
+  GONIO_TRY(r.Bool(*a, "limit_switches", &ax.options.limit_switches));
+  GONIO_TRY(r.Integer(*a, "limit_min_steps", &ax.options.limit_min_steps, INT32_MIN, INT32_MAX));
+  GONIO_TRY(r.Integer(*a, "limit_max_steps", &ax.options.limit_max_steps, INT32_MIN, INT32_MAX));
+  if (ax.options.limit_min_steps >= ax.options.limit_max_steps)
+    return r.Fail(a, "limit_min_steps must be below limit_max_steps");
+  GONIO_TRY(r.Number(*a, "backlash_steps", &ax.options.backlash_steps, 0, 1e6));
+  return ax;
+}
+
+// One [[faults.event]]: its kind, target, trigger (exactly one of three) and effect.
+Result<FaultEvent> ReadFaultEvent(Reader& r, const toml::node& item) {
+  const toml::table* e = item.as_table();
+  if (e == nullptr) return r.Fail(&item, "each [[faults.event]] must be a table");
+  GONIO_TRY(r.Keys(*e, "faults.event",
+                   {"kind", "target", "at_opportunity", "at_time_s", "probability", "count", "code",
+                    "duration_s"}));
+  FaultEvent ev;
+  std::string kind;
+  if (e->get("kind") == nullptr) return r.Fail(&item, "fault event without 'kind'");
+  GONIO_TRY(r.String(*e, "kind", &kind,
+                     {"modbus_timeout", "modbus_crc", "modbus_drop", "axis_alarm", "axis_stall",
+                      "frame_drop", "frame_incomplete", "cooler_fail", "monitor_disconnect"}));
+  ev.kind = *FaultKindFromString(kind);
+  GONIO_TRY(r.String(*e, "target", &ev.target, {"sample", "arm", "azimuth"}));
+  GONIO_TRY(r.Integer(*e, "at_opportunity", &ev.at_opportunity, 1, INT64_MAX));
+  GONIO_TRY(r.Number(*e, "at_time_s", &ev.at_time_s, 0, 1e9));
+  GONIO_TRY(r.Number(*e, "probability", &ev.probability, 0, 1));
+  const int triggers = (e->get("at_opportunity") != nullptr) + (e->get("at_time_s") != nullptr) +
+                       (e->get("probability") != nullptr);
+  if (triggers != 1)
+    return r.Fail(&item,
+                  "a fault event needs exactly one of at_opportunity, at_time_s, probability");
+  std::int64_t count = 1, code = 0;
+  GONIO_TRY(r.Integer(*e, "count", &count, 1, INT32_MAX));
+  GONIO_TRY(r.Integer(*e, "code", &code, 0, 0xFFFF));
+  ev.count = static_cast<int>(count);
+  ev.code = static_cast<std::uint32_t>(code);
+  GONIO_TRY(r.Number(*e, "duration_s", &ev.duration_s, 0, 1e6));
+  return ev;
+}
+
+}  // namespace
+
 Result<SimConfig> LoadSimConfig(const std::string& path) {
   auto parsed = config::ParseTomlFile(path);
   if (!parsed.ok()) return parsed.error();
@@ -57,34 +139,9 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
       c.axes.clear();
       std::set<std::string> roles;
       for (const toml::node& item : *list) {
-        const toml::table* a = item.as_table();
-        if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
-        AxisConfig ax;
-        GONIO_TRY(r.Keys(
-            *a, "stages.axis",
-            {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps", "settle_s",
-             "limit_switches", "limit_min_steps", "limit_max_steps", "backlash_steps"}));
-        if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
-        GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth"}));
-        if (!roles.insert(ax.role).second) {
-          return r.Fail(a->get("role"), "role '" + ax.role + "' given to two axes");
-        }
-        GONIO_TRY(r.Number(*a, "steps_per_degree", &ax.steps_per_degree, 1e-3, 1e7));
-        GONIO_TRY(r.Number(*a, "degrees_at_zero", &ax.degrees_at_zero, -360, 360));
-        GONIO_TRY(r.Integer(*a, "min_steps", &ax.options.min_steps, INT32_MIN, INT32_MAX));
-        GONIO_TRY(r.Integer(*a, "max_steps", &ax.options.max_steps, INT32_MIN, INT32_MAX));
-        if (ax.options.min_steps >= ax.options.max_steps)
-          return r.Fail(a, "min_steps must be below max_steps");
-        GONIO_TRY(r.Number(*a, "settle_s", &ax.options.settle_s, 0, 10));
-        GONIO_TRY(r.Bool(*a, "limit_switches", &ax.options.limit_switches));
-        GONIO_TRY(
-            r.Integer(*a, "limit_min_steps", &ax.options.limit_min_steps, INT32_MIN, INT32_MAX));
-        GONIO_TRY(
-            r.Integer(*a, "limit_max_steps", &ax.options.limit_max_steps, INT32_MIN, INT32_MAX));
-        if (ax.options.limit_min_steps >= ax.options.limit_max_steps)
-          return r.Fail(a, "limit_min_steps must be below limit_max_steps");
-        GONIO_TRY(r.Number(*a, "backlash_steps", &ax.options.backlash_steps, 0, 1e6));
-        c.axes.push_back(ax);
+        auto ax = ReadAxis(r, item, roles);
+        if (!ax.ok()) return ax.error();
+        c.axes.push_back(*ax);
       }
     }
   }
@@ -137,35 +194,9 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
       const toml::array* list = n->as_array();
       if (list == nullptr) return r.Fail(n, "[[faults.event]] must be a list of tables");
       for (const toml::node& item : *list) {
-        const toml::table* e = item.as_table();
-        if (e == nullptr) return r.Fail(&item, "each [[faults.event]] must be a table");
-        GONIO_TRY(r.Keys(*e, "faults.event",
-                         {"kind", "target", "at_opportunity", "at_time_s", "probability", "count",
-                          "code", "duration_s"}));
-        FaultEvent ev;
-        std::string kind;
-        if (e->get("kind") == nullptr) return r.Fail(&item, "fault event without 'kind'");
-        GONIO_TRY(
-            r.String(*e, "kind", &kind,
-                     {"modbus_timeout", "modbus_crc", "modbus_drop", "axis_alarm", "axis_stall",
-                      "frame_drop", "frame_incomplete", "cooler_fail", "monitor_disconnect"}));
-        ev.kind = *FaultKindFromString(kind);
-        GONIO_TRY(r.String(*e, "target", &ev.target, {"sample", "arm", "azimuth"}));
-        GONIO_TRY(r.Integer(*e, "at_opportunity", &ev.at_opportunity, 1, INT64_MAX));
-        GONIO_TRY(r.Number(*e, "at_time_s", &ev.at_time_s, 0, 1e9));
-        GONIO_TRY(r.Number(*e, "probability", &ev.probability, 0, 1));
-        const int triggers = (e->get("at_opportunity") != nullptr) +
-                             (e->get("at_time_s") != nullptr) + (e->get("probability") != nullptr);
-        if (triggers != 1)
-          return r.Fail(
-              &item, "a fault event needs exactly one of at_opportunity, at_time_s, probability");
-        std::int64_t count = 1, code = 0;
-        GONIO_TRY(r.Integer(*e, "count", &count, 1, INT32_MAX));
-        GONIO_TRY(r.Integer(*e, "code", &code, 0, 0xFFFF));
-        ev.count = static_cast<int>(count);
-        ev.code = static_cast<std::uint32_t>(code);
-        GONIO_TRY(r.Number(*e, "duration_s", &ev.duration_s, 0, 1e6));
-        c.faults.push_back(ev);
+        auto ev = ReadFaultEvent(r, item);
+        if (!ev.ok()) return ev.error();
+        c.faults.push_back(*ev);
       }
     }
   }

@@ -50,6 +50,10 @@ struct SimConfig {
 // The defaults when no file is given: three axes (sample, arm at 180 deg, azimuth), the camera,
 // ground glass.
 SimConfig DefaultSimConfig();
+// The two-axis bench that tests and benchmarks start in-process (sim/instrument.h): the sample
+// axis (-90..90 deg) and the arm (0..360 deg, 180 at zero steps), 1000 steps per degree, the
+// camera and the monitor, on any free ports, the clock at `clock_speed`.
+SimConfig TwoAxisConfig(double clock_speed);
 // Parses and validates a file; errors carry "path:line: what is wrong".
 Result<SimConfig> LoadSimConfig(const std::string& path);
 

@@ -64,7 +64,8 @@ void ReplyError(httplib::Response& res, const Error& e) {
 json RunJson(const acquisition::RunInfo& r) {
   json o{{"id", r.id},
          {"specimen", r.specimen},
-         {"status", r.status},
+         {"specimen_eta", r.specimen_eta},
+         {"status", acquisition::ToString(r.status)},
          {"points_total", r.points_total},
          {"points_done", r.points_done},
          {"points_skipped", r.points_skipped}};
@@ -163,9 +164,18 @@ void ApiServer::Stop() {
 }
 
 void ApiServer::Routes() {
-  httplib::Server& srv = *server_;
-  Controller& c = *controller_;
+  RouteGuards();
+  RouteJobs();
+  RouteSchedules();
+  RouteControl();
+  RouteRuns();
+  RouteFits();
+  RouteEvents();
+}
 
+// The token on every mutating call, and errors as JSON.
+void ApiServer::RouteGuards() {
+  httplib::Server& srv = *server_;
   // Authorisation of mutating calls, before any handler runs.
   srv.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
     if (req.method == "GET" || req.method == "HEAD")
@@ -194,7 +204,12 @@ void ApiServer::Routes() {
         }
         ReplyError(res, 500, "internal error: " + what);
       });
+}
 
+// The status and the job queue: list, one job, submit, cancel, move.
+void ApiServer::RouteJobs() {
+  httplib::Server& srv = *server_;
+  Controller& c = *controller_;
   srv.Get("/api/v1/status", [&c](const httplib::Request&, httplib::Response& res) {
     Reply(res, 200, StatusJson(c.Report()));
   });
@@ -242,7 +257,12 @@ void ApiServer::Routes() {
              for (const Job& j : c.Jobs()) list.push_back(ToJson(j));
              Reply(res, 200, {{"jobs", list}});
            });
+}
 
+// Schedules: validated with their plans, then queued or only described.
+void ApiServer::RouteSchedules() {
+  httplib::Server& srv = *server_;
+  Controller& c = *controller_;
   // A schedule with its plans' texts: validated against the instrument, then queued (or, with
   // "dry_run", only described: what would run and how long it would take).
   srv.Post("/api/v1/schedules", [this, &c](const httplib::Request& req, httplib::Response& res) {
@@ -294,7 +314,12 @@ void ApiServer::Routes() {
     for (const Job& j : *jobs) list.push_back(ToJson(j));
     Reply(res, 201, {{"jobs", list}, {"estimate_s", schedule->EstimateSeconds()}});
   });
+}
 
+// Run control: pause, resume, abort.
+void ApiServer::RouteControl() {
+  httplib::Server& srv = *server_;
+  Controller& c = *controller_;
   auto control = [&c](Status (Controller::*op)()) {
     return [&c, op](const httplib::Request&, httplib::Response& res) {
       Status s = (c.*op)();
@@ -305,7 +330,11 @@ void ApiServer::Routes() {
   srv.Post("/api/v1/pause", control(&Controller::Pause));
   srv.Post("/api/v1/resume", control(&Controller::Resume));
   srv.Post("/api/v1/abort", control(&Controller::Abort));
+}
 
+// Stored runs: the list, one run with its measurements and events, its CSV.
+void ApiServer::RouteRuns() {
+  httplib::Server& srv = *server_;
   srv.Get("/api/v1/runs", [this](const httplib::Request&, httplib::Response& res) {
     auto runs = reader_->ListRuns();
     if (!runs.ok()) return ReplyError(res, runs.error());
@@ -352,8 +381,11 @@ void ApiServer::Routes() {
     res.status = 200;
     res.set_content(text.str(), "text/csv");
   });
+}
 
-  // Fits of a run, stored with it.
+// Fits of a run, stored with it.
+void ApiServer::RouteFits() {
+  httplib::Server& srv = *server_;
   srv.Get(R"(/api/v1/runs/(\d+)/fits)",
           [this](const httplib::Request& req, httplib::Response& res) {
             const std::int64_t id = IdOf(req);
@@ -394,7 +426,12 @@ void ApiServer::Routes() {
              }
              Reply(res, 200, {{"fits", list}});
            });
+}
 
+// The live event stream.
+void ApiServer::RouteEvents() {
+  httplib::Server& srv = *server_;
+  Controller& c = *controller_;
   // Server-sent events: every event after ?after=N (default: only new ones), as
   // "id: N\nevent: type\ndata: {json}\n\n", with a comment line every 15 s to keep it open.
   srv.Get("/api/v1/events", [&c](const httplib::Request& req, httplib::Response& res) {

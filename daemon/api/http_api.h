@@ -44,7 +44,14 @@ class ApiServer {
 
  private:
   ApiServer() = default;
-  void Routes();
+  void Routes();  // registers each group below
+  void RouteGuards();
+  void RouteJobs();
+  void RouteSchedules();
+  void RouteControl();
+  void RouteRuns();
+  void RouteFits();
+  void RouteEvents();
 
   Controller* controller_ = nullptr;
   ApiOptions o_;

@@ -1,5 +1,6 @@
 #include "daemon/schedule/schedule.h"
 
+#include <algorithm>
 #include <ctime>
 
 #include "config/toml_reader.h"
@@ -18,6 +19,23 @@ std::optional<std::int64_t> ParseLocalTime(const std::string& iso) {
     }
   }
   return std::nullopt;
+}
+
+Result<std::vector<PlanReference>> PlanReferences(std::string_view text, const std::string& name) {
+  auto parsed = config::ParseTomlText(text, name);
+  if (!parsed.ok()) return parsed.error();
+  std::vector<PlanReference> out;
+  if (const toml::array* jobs = (*parsed)["job"].as_array()) {
+    for (const toml::node& n : *jobs) {
+      const toml::table* t = n.as_table();
+      const toml::node* p = t ? t->get("plan") : nullptr;
+      const auto plan = p ? p->value<std::string>() : std::nullopt;
+      if (!plan) continue;  // ParseSchedule names what is wrong with it
+      if (std::none_of(out.begin(), out.end(), [&](const auto& r) { return r.name == *plan; }))
+        out.push_back({*plan, static_cast<int>(p->source().begin.line)});
+    }
+  }
+  return out;
 }
 
 double Schedule::EstimateSeconds() const {

@@ -69,6 +69,15 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
                                const acquisition::PlanContext& context,
                                const ExposureLookup& history = {});
 
+// The plan files a schedule names, each once, with the line that names it: what a client reads
+// and sends along with the schedule. Only the TOML syntax is checked here (errors
+// "name:line: ..."); ParseSchedule checks the rest on the daemon's side.
+struct PlanReference {
+  std::string name;
+  int line = 0;
+};
+Result<std::vector<PlanReference>> PlanReferences(std::string_view text, const std::string& name);
+
 // "2026-11-24T02:00" or "2026-11-24T02:00:30", local time; nullopt if malformed.
 std::optional<std::int64_t> ParseLocalTime(const std::string& iso);
 

@@ -24,13 +24,32 @@ Error NotNow(const std::string& what) { return Error{ErrorCode::kFailedPrecondit
 
 constexpr int kFinishedJobsKept = 100;  // listed after a restart
 
-bool Unfinished(const std::string& job_state) {
-  return job_state == "queued" || job_state == "running" || job_state == "paused";
+// A finished run's status as its job's end, and back: the two share done, aborted and failed.
+JobState JobEndOf(acquisition::RunStatus finished) {
+  switch (finished) {
+    case acquisition::RunStatus::kDone:
+      return JobState::kDone;
+    case acquisition::RunStatus::kAborted:
+      return JobState::kAborted;
+    default:
+      return JobState::kFailed;
+  }
+}
+
+acquisition::RunStatus RunStatusOf(JobState end) {
+  switch (end) {
+    case JobState::kDone:
+      return acquisition::RunStatus::kDone;
+    case JobState::kAborted:
+      return acquisition::RunStatus::kAborted;
+    default:
+      return acquisition::RunStatus::kFailed;
+  }
 }
 
 // A job as the database keeps it: the schedule's options as JSON beside the plan.
-acquisition::JobRecord ToRecord(const Job& j) {
-  acquisition::JobRecord r;
+JobRecord ToRecord(const Job& j) {
+  JobRecord r;
   r.id = j.id;
   r.name = j.name;
   r.plan_text = j.plan_text;
@@ -51,7 +70,7 @@ acquisition::JobRecord ToRecord(const Job& j) {
 }
 
 // The job's fields; its schedule options are read by ReadOptions.
-Job FromRecord(const acquisition::JobRecord& r) {
+Job FromRecord(const JobRecord& r) {
   Job j;
   j.id = r.id;
   j.name = r.name;
@@ -62,7 +81,7 @@ Job FromRecord(const acquisition::JobRecord& r) {
   return j;
 }
 
-Status ReadOptions(const acquisition::JobRecord& r, Job& j) {
+Status ReadOptions(const JobRecord& r, Job& j) {
   try {
     const nlohmann::json o = nlohmann::json::parse(r.options_json);
     if (o.contains("start_at_unix")) j.start_at_unix = o.at("start_at_unix").get<std::int64_t>();
@@ -83,7 +102,8 @@ Status ReadOptions(const acquisition::JobRecord& r, Job& j) {
 }  // namespace
 
 nlohmann::json ToJson(const Job& j) {
-  nlohmann::json o{{"id", j.id}, {"name", j.name}, {"state", j.state}, {"message", j.message}};
+  nlohmann::json o{
+      {"id", j.id}, {"name", j.name}, {"state", ToString(j.state)}, {"message", j.message}};
   o["run"] = j.run ? nlohmann::json(*j.run) : nlohmann::json(nullptr);
   if (j.start_at_unix) o["start_at_unix"] = *j.start_at_unix;
   if (j.cooler) o["cooler_setpoint_c"] = j.cooler->setpoint_c;
@@ -125,8 +145,8 @@ const char* ToString(State s) {
   return "unknown";
 }
 
-Controller::Controller(drivers::StageController& stages, drivers::Camera& camera,
-                       drivers::SourceMonitor* monitor, acquisition::Storage& db,
+Controller::Controller(devices::StageController& stages, devices::Camera& camera,
+                       devices::SourceMonitor* monitor, acquisition::Storage& db,
                        acquisition::PlanContext context, ControllerOptions options)
     : stages_(stages),
       camera_(camera),
@@ -147,19 +167,19 @@ Status Controller::Start(std::optional<bool> resume_interrupted) {
 }
 
 Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
-  auto records = db_.Jobs(kFinishedJobsKept);
+  auto records = jobs_.Jobs(kFinishedJobsKept);
   if (!records.ok()) return records.error();
   std::vector<Job> interrupted;  // jobs that had started (a run) and did not finish
-  for (const acquisition::JobRecord& r : *records) {
+  for (const JobRecord& r : *records) {
     Job j = FromRecord(r);
     if (Status st = ReadOptions(r, j); !st.ok()) {  // a damaged row ends that job, not the start
       j.message = st.error().message;
       if (Unfinished(j.state)) {
-        j.state = "failed";
-        acquisition::JobRecord failed = r;  // its options stay as found, for whoever looks
+        j.state = JobState::kFailed;
+        JobRecord failed = r;  // its options stay as found, for whoever looks
         failed.state = j.state;
         failed.message = j.message;
-        (void)db_.UpdateJob(failed);
+        (void)jobs_.Update(failed);
       }
       finished_.push_back(j);
       continue;
@@ -167,7 +187,7 @@ Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
     if (!Unfinished(j.state)) {
       finished_.push_back(j);
     } else if (!j.run) {
-      j.state = "queued";  // it never started
+      j.state = JobState::kQueued;  // it never started
       queue_.push_back(j);
     } else {
       interrupted.push_back(j);
@@ -179,8 +199,8 @@ Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
   for (Job& j : interrupted) {
     auto info = db_.GetRun(*j.run);
     if (!info.ok()) return info.error();
-    if (info->status == "done" || info->status == "aborted" || info->status == "failed") {
-      j.state = info->status;
+    if (acquisition::Finished(info->status)) {
+      j.state = JobEndOf(info->status);
       j.message = "its run ended before the daemon stopped";
       SaveJob(j);
       finished_.push_back(j);
@@ -199,15 +219,15 @@ Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
     j.name = "interrupted run " + std::to_string(info->id);
     j.plan_text = info->plan_text;
     j.run = info->id;
-    j.state = "paused";
-    auto id = db_.InsertJob(ToRecord(j));
+    j.state = JobState::kPaused;
+    auto id = jobs_.Insert(ToRecord(j));
     if (!id.ok()) return id.error();
     j.id = *id;
     open.push_back(j);
   }
   for (std::size_t k = 0; k < open.size(); ++k) {
     Job& j = open[k];
-    j.state = "paused";
+    j.state = JobState::kPaused;
     // Only one job runs at a time, so at most one should be open; any other is left paused.
     if (!resume_interrupted || k + 1 < open.size()) {
       j.message = resume_interrupted ? "interrupted; another interrupted job was taken up"
@@ -217,7 +237,7 @@ Status Controller::LoadJobs(std::optional<bool> resume_interrupted) {
       continue;
     }
     current_ = j;
-    (void)db_.SetRunStatus(*j.run, "paused");
+    (void)db_.SetRunStatus(*j.run, acquisition::RunStatus::kPaused);
     (void)db_.AddEvent(*j.run, "daemon", "found interrupted at daemon start");
     SetState(State::kPaused, "interrupted by a daemon stop; found at start");
     SaveJob(*current_);
@@ -251,10 +271,10 @@ Result<Job> Controller::Submit(Job j) {
   if (!plan.ok()) return plan.error();
   std::lock_guard lock(mu_);
   if (shutdown_) return NotNow("the daemon is shutting down");
-  j.state = "queued";
+  j.state = JobState::kQueued;
   j.run.reset();
   j.message.clear();
-  auto id = db_.InsertJob(ToRecord(j));  // stored before it is accepted: a restart keeps it
+  auto id = jobs_.Insert(ToRecord(j));  // stored before it is accepted: a restart keeps it
   if (!id.ok()) return id.error();
   j.id = *id;
   queue_.push_back(j);
@@ -303,17 +323,17 @@ Result<Job> Controller::Cancel(std::int64_t id) {
     if (it->id != id) continue;
     Job j = *it;
     queue_.erase(it);
-    j.state = "cancelled";
+    j.state = JobState::kCancelled;
     j.message = "cancelled before it started";
     finished_.push_back(j);
     SaveJob(j);
     return j;
   }
   if (current_ && current_->id == id)
-    return NotNow("job " + std::to_string(id) + " is " + current_->state +
+    return NotNow("job " + std::to_string(id) + " is " + ToString(current_->state) +
                   ": abort it instead of cancelling");
   for (const Job& j : finished_)
-    if (j.id == id) return NotNow("job " + std::to_string(id) + " is already " + j.state);
+    if (j.id == id) return NotNow("job " + std::to_string(id) + " is already " + ToString(j.state));
   return Error{ErrorCode::kNotFound, "no job " + std::to_string(id)};
 }
 
@@ -332,7 +352,7 @@ Status Controller::Move(std::int64_t id, int position) {
   queue_.insert(queue_.begin() + static_cast<std::ptrdiff_t>(at), j);
   std::vector<std::int64_t> order;
   for (const Job& q : queue_) order.push_back(q.id);
-  if (Status st = db_.SetQueueOrder(order); !st.ok()) return st;
+  if (Status st = jobs_.SetQueueOrder(order); !st.ok()) return st;
   events_.Publish("queue", {{"moved", id}, {"position", at}});
   return OkStatus();
 }
@@ -371,7 +391,7 @@ Status Controller::Abort() {
     case State::kFault:
       // The worker is not in the engine: end the run here (stages are already still).
       resume_requested_ = false;
-      FinishCurrent("aborted", "aborted by the operator");
+      FinishCurrent(JobState::kAborted, "aborted by the operator");
       SetState(State::kIdle, "");
       cv_.notify_all();
       return OkStatus();
@@ -405,20 +425,20 @@ void Controller::SetState(State s, const std::string& reason) {
 }
 
 void Controller::SaveJob(const Job& j) {
-  if (Status st = db_.UpdateJob(ToRecord(j)); !st.ok())
+  if (Status st = jobs_.Update(ToRecord(j)); !st.ok())
     events_.Publish(
         "log", {{"level", "error"},
                 {"message", "job " + std::to_string(j.id) + " not stored: " + st.error().message}});
   events_.Publish("job", ToJson(j));
 }
 
-void Controller::FinishCurrent(const std::string& state, const std::string& message) {
+void Controller::FinishCurrent(JobState end, const std::string& message) {
   if (!current_) return;
-  current_->state = state;
+  current_->state = end;
   current_->message = message;
   if (current_->run) {
-    (void)db_.SetRunStatus(*current_->run, state);
-    if (!message.empty()) (void)db_.AddEvent(*current_->run, state, message);
+    (void)db_.SetRunStatus(*current_->run, RunStatusOf(end));
+    if (!message.empty()) (void)db_.AddEvent(*current_->run, ToString(end), message);
   }
   SaveJob(*current_);
   finished_.push_back(*current_);
@@ -492,8 +512,8 @@ void Controller::Worker() {
   }
   // Shutdown with a run in hand: it stays paused in the database for the next start.
   if (current_ && current_->run) {
-    (void)db_.SetRunStatus(*current_->run, "paused");
-    current_->state = "paused";
+    (void)db_.SetRunStatus(*current_->run, acquisition::RunStatus::kPaused);
+    current_->state = JobState::kPaused;
     SaveJob(*current_);
   }
 }
@@ -503,18 +523,14 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   auto plan =
       acquisition::LoadPlanText(job.plan_text, job.name.empty() ? "plan" : job.name, context_);
   if (!plan.ok()) {  // validated at submit; the context cannot change, but say so if it did
-    FinishCurrent("failed", plan.error().message);
+    FinishCurrent(JobState::kFailed, plan.error().message);
     SetState(State::kIdle, "");
     return;
   }
   if (!job.run) {
-    auto spec = db_.EnsureSpecimen(plan->specimen);
-    auto cfg = spec.ok() ? db_.StoreConfig(o_.config_text) : Result<std::int64_t>(spec.error());
-    auto run = cfg.ok() ? db_.CreateRun(*spec, *cfg, plan->text,
-                                        acquisition::ExpandPoints(*plan, context_))
-                        : Result<std::int64_t>(cfg.error());
+    auto run = db_.NewRun(*plan, o_.config_text, acquisition::ExpandPoints(*plan, context_));
     if (!run.ok()) {
-      FinishCurrent("failed", run.error().message);
+      FinishCurrent(JobState::kFailed, run.error().message);
       SetState(State::kIdle, "");
       return;
     }
@@ -535,14 +551,14 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
       const bool aborted = stop_reason_ == StopReason::kAbort;
       const bool stopping = stop_reason_ == StopReason::kShutdown;
       if (stopping) return;  // the run stays planned; the worker exits
-      FinishCurrent(aborted ? "aborted" : "failed",
+      FinishCurrent(aborted ? JobState::kAborted : JobState::kFailed,
                     aborted ? "aborted while cooling" : cooled.error().message);
       SetState(State::kIdle, "");
       return;
     }
     (void)db_.AddEvent(run, "cooled", "sensor held at " + std::to_string(w.setpoint_c) + " C");
   }
-  job.state = "running";
+  job.state = JobState::kRunning;
   SaveJob(job);
   SetState(State::kRunning, "");
 
@@ -557,10 +573,10 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   if (!s.ok()) {
     // A device fault the drivers' retries did not clear: the engine left the run paused.
     (void)db_.AddEvent(run, "suspend", "device fault: " + s.error().message);
-    current_->state = "paused";
+    current_->state = JobState::kPaused;
     SaveJob(*current_);
     if (why == StopReason::kAbort) {
-      FinishCurrent("aborted", "aborted by the operator (after a device fault)");
+      FinishCurrent(JobState::kAborted, "aborted by the operator (after a device fault)");
       SetState(State::kIdle, "");
       return;
     }
@@ -574,25 +590,25 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     return;
   }
   auto info = db_.GetRun(run);
-  if (info.ok() && info->status == "done") {
+  if (info.ok() && info->status == acquisition::RunStatus::kDone) {
     if (!current_->fit.empty()) {
       const Job finished = *current_;
       lock.unlock();
       FitAfterRun(finished);
       lock.lock();
     }
-    FinishCurrent("done", "");
+    FinishCurrent(JobState::kDone, "");
     SetState(State::kIdle, "");
     return;
   }
   // Stopped by a request, after a stored point.
-  current_->state = "paused";
+  current_->state = JobState::kPaused;
   switch (why) {
     case StopReason::kAbort:
       lock.unlock();
       SafeState();
       lock.lock();
-      FinishCurrent("aborted", "aborted by the operator");
+      FinishCurrent(JobState::kAborted, "aborted by the operator");
       SetState(State::kIdle, "");
       break;
     case StopReason::kSuspend:
@@ -630,7 +646,7 @@ void Controller::OnPoint(const Progress& p) {
 }
 
 Status Controller::CoolDown(const CoolerWait& w) {
-  drivers::TemperatureWait t;
+  devices::TemperatureWait t;
   t.setpoint_c = w.setpoint_c;
   t.tolerance_c = w.tolerance_c;
   t.hold_s = w.hold_s;

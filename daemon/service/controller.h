@@ -35,6 +35,7 @@
 #include "acquisition/storage.h"
 #include "daemon/schedule/schedule.h"
 #include "daemon/service/events.h"
+#include "daemon/service/job_store.h"
 
 namespace gonio::daemon {
 
@@ -45,7 +46,7 @@ struct Job {
   std::int64_t id = 0;
   std::string name;       // the submitter's label (a plan file name)
   std::string plan_text;  // TOML, validated at submit
-  std::string state;      // queued | running | paused | done | aborted | failed | cancelled
+  JobState state = JobState::kQueued;
   std::optional<std::int64_t> run;  // once started
   std::string message;              // why it failed, was aborted or cancelled
   // From a schedule (all optional): not before this time; cool and hold first; fit after.
@@ -89,8 +90,8 @@ class Controller {
  public:
   // The devices and the database outlive the controller; monitor may be null. `context` checks
   // submitted plans (specimen catalogue, travel limits, image size).
-  Controller(drivers::StageController& stages, drivers::Camera& camera,
-             drivers::SourceMonitor* monitor, acquisition::Storage& db,
+  Controller(devices::StageController& stages, devices::Camera& camera,
+             devices::SourceMonitor* monitor, acquisition::Storage& db,
              acquisition::PlanContext context, ControllerOptions options);
   ~Controller();  // Shutdown()
   Controller(const Controller&) = delete;
@@ -138,17 +139,18 @@ class Controller {
   std::optional<std::string> SuspendCondition();      // worker thread; the reason, when tripped
   void SetState(State s, const std::string& reason);  // mu_ held
   void SaveJob(const Job& j);                         // stores and publishes it; mu_ held
-  Status LoadJobs(std::optional<bool> resume_interrupted);  // mu_ held, before the worker
-  void FinishCurrent(const std::string& state, const std::string& message);  // mu_ held
-  void SafeState();  // stages stopped; worker thread
+  Status LoadJobs(std::optional<bool> resume_interrupted);       // mu_ held, before the worker
+  void FinishCurrent(JobState end, const std::string& message);  // mu_ held
+  void SafeState();                                              // stages stopped; worker thread
   Status CoolDown(
       const CoolerWait& w);  // worker thread, without mu_; the driver's wait, cancelled by stop_
   void FitAfterRun(const Job& job);  // worker thread, without mu_
 
-  drivers::StageController& stages_;
-  drivers::Camera& camera_;
-  drivers::SourceMonitor* monitor_;
+  devices::StageController& stages_;
+  devices::Camera& camera_;
+  devices::SourceMonitor* monitor_;
   acquisition::Storage& db_;
+  JobStore jobs_{db_};
   acquisition::PlanContext context_;
   ControllerOptions o_;
   EventLog events_;

@@ -21,6 +21,7 @@
 #include "acquisition/plan.h"
 #include "acquisition/storage.h"
 #include "config/instrument_config.h"
+#include "daemon/instrument/instrument.h"
 
 namespace {
 
@@ -45,6 +46,76 @@ std::string Duration(double s) {
     std::snprintf(b, sizeof b, "%.1f h", s / 3600);
   }
   return b;
+}
+
+// What `resume` continues: the run given, or the latest unfinished one; nullopt, with the reason
+// printed, when there is nothing to continue.
+Result<std::optional<RunInfo>> RunToResume(Storage& store, std::int64_t run_id,
+                                           const std::string& db_path) {
+  if (run_id == 0) {
+    auto latest = store.UnfinishedRun();
+    if (!latest.ok()) return latest.error();
+    if (!*latest) {
+      std::cout << "no interrupted run in " << db_path << ": nothing to resume\n";
+      return std::optional<RunInfo>();
+    }
+    run_id = **latest;
+  }
+  auto info = store.GetRun(run_id);
+  if (!info.ok()) return info.error();
+  if (info->status == RunStatus::kDone) {
+    std::cout << "run " << run_id << " is already done\n";
+    return std::optional<RunInfo>();
+  }
+  return std::optional<RunInfo>(*info);
+}
+
+// The plan's points, the skipped ones with their reasons, and the bench time it will take,
+// priced at the exposures the newest finished run of its specimen needed, if there is one.
+Status PrintPlanSummary(Storage& store, const std::string& plan_path, const Plan& plan,
+                        const std::vector<PlannedPoint>& points,
+                        const std::vector<devices::AxisSettings>& axes) {
+  int skipped = 0;
+  for (const auto& p : points) skipped += p.skipped;
+  auto history = store.LatestExposures(plan.specimen.name);
+  if (!history.ok()) return history.error();
+  const ExposureHistory* seen = *history ? &**history : nullptr;
+  const double estimate = EstimateSeconds(plan, points, axes, plan.exposure.initial_s, seen);
+  std::cout << "plan " << plan_path << ": " << plan.specimen.name << ", " << points.size() - skipped
+            << " points (" << skipped << " skipped), about " << Duration(estimate)
+            << " of bench time for motion and exposure (from "
+            << (seen ? "run " + std::to_string(seen->run) + "'s exposures"
+                     : std::string("the plan's initial exposure"))
+            << ")\n";
+  for (const auto& p : points)
+    if (p.skipped)
+      std::cout << "  skip theta_l " << p.theta_l_deg << " theta_v " << p.theta_v_deg << ": "
+                << p.reason << "\n";
+  return OkStatus();
+}
+
+// Measures the run to its end, or until a signal pauses it (exit 3).
+int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConfig& cfg,
+            std::int64_t run_id, const Plan& plan) {
+  EngineOptions eo;
+  eo.linear_limit_adu = cfg.camera.linear_limit_adu;
+  Engine engine(*in.stages, *in.camera, in.monitor.monitor.get(), store, eo);
+  const Status s = engine.Run(run_id, plan, g_stop, [](const Progress& p) {
+    std::printf(
+        "[%4d/%d] theta_l %5.1f theta_v %6.1f  exposure %-9.4g s  value %.5g +- %.2g  ETA %s\n",
+        p.done, p.total, p.point.theta_l_deg, p.point.theta_v_deg, p.last.exposure_s, p.last.value,
+        p.last.sigma, Duration(p.eta_s).c_str());
+    std::fflush(stdout);
+  });
+  if (!s.ok()) return Fail(s.error());
+  auto info = store.GetRun(run_id);
+  if (info.ok() && info->status == RunStatus::kPaused) {
+    std::cout << "run " << run_id << " paused after " << info->points_done
+              << " points; continue with: gonio-acquire ... resume " << run_id << "\n";
+    return 3;
+  }
+  std::cout << "run " << run_id << " done\n";
+  return 0;
 }
 
 }  // namespace
@@ -91,8 +162,8 @@ int main(int argc, char** argv) {
   if (*status_cmd) {
     auto info = store.GetRun(run_id);
     if (!info.ok()) return Fail(info.error());
-    std::cout << "run " << info->id << " (" << info->specimen << "): " << info->status << ", "
-              << info->points_done << "/" << info->points_total - info->points_skipped
+    std::cout << "run " << info->id << " (" << info->specimen << "): " << ToString(info->status)
+              << ", " << info->points_done << "/" << info->points_total - info->points_skipped
               << " points, " << info->points_skipped << " skipped\n";
     return 0;
   }
@@ -103,105 +174,42 @@ int main(int argc, char** argv) {
   if (!specimens.ok()) return Fail(specimens.error());
 
   // The plan: a new one from its file, or a resumed run's own stored text.
-  PlanContext ctx;
-  ctx.specimens = *specimens;
-  ctx.axes = cfg->axes;
   std::string plan_file = plan_path, stored_plan;
   if (*resume_cmd) {
-    if (run_id == 0) {
-      auto latest = store.UnfinishedRun();
-      if (!latest.ok()) return Fail(latest.error());
-      if (!*latest) {
-        std::cout << "no interrupted run in " << db_path << ": nothing to resume\n";
-        return 0;
-      }
-      run_id = **latest;
-    }
-    auto info = store.GetRun(run_id);
-    if (!info.ok()) return Fail(info.error());
-    if (info->status == "done") {
-      std::cout << "run " << run_id << " is already done\n";
-      return 0;
-    }
+    auto resumed = RunToResume(store, run_id, db_path);
+    if (!resumed.ok()) return Fail(resumed.error());
+    if (!*resumed) return 0;
+    run_id = (*resumed)->id;
     plan_file = "run " + std::to_string(run_id) + "'s stored plan";
-    stored_plan = info->plan_text;
+    stored_plan = (*resumed)->plan_text;
   }
   // The devices open before the plan is checked against the camera's image: nothing moves yet.
-  std::unique_ptr<drivers::Camera> camera;
-  std::unique_ptr<drivers::StageController> stages;
-  config::OpenedMonitor monitor;
+  // A dry run opens nothing and checks the plan against the config alone.
+  daemon::Instrument in;
+  in.context = daemon::PlanContextOf(*cfg, *specimens);
   if (!dry_run) {
-    auto cam = config::OpenCamera(*cfg);
-    if (!cam.ok()) return Fail(cam.error());
-    camera = std::move(cam).value();
-    auto size = camera->ImageSize();
-    if (!size.ok()) return Fail(size.error());
-    ctx.image_width = size->width;
-    ctx.image_height = size->height;
+    auto opened = daemon::OpenInstrument(*cfg, *specimens);
+    if (!opened.ok()) return Fail(opened.error());
+    in = std::move(opened).value();
   }
+  const PlanContext& ctx = in.context;
   auto plan = *resume_cmd ? LoadPlanText(stored_plan, plan_file, ctx) : LoadPlan(plan_file, ctx);
   if (!plan.ok()) return Fail(plan.error());
   const auto points = ExpandPoints(*plan, ctx);
-  int skipped = 0;
-  for (const auto& p : points) skipped += p.skipped;
-  // Priced at the exposures the newest finished run of the specimen needed, if there is one.
-  auto history = store.LatestExposures(plan->specimen.name);
-  if (!history.ok()) return Fail(history.error());
-  const ExposureHistory* seen = *history ? &**history : nullptr;
-  const double estimate = EstimateSeconds(*plan, points, cfg->axes, plan->exposure.initial_s, seen);
-  if (dry_run || *run_cmd) {
-    std::cout << "plan " << plan_path << ": " << plan->specimen.name << ", "
-              << points.size() - skipped << " points (" << skipped << " skipped), about "
-              << Duration(estimate) << " of bench time for motion and exposure (from "
-              << (seen ? "run " + std::to_string(seen->run) + "'s exposures"
-                       : std::string("the plan's initial exposure"))
-              << ")\n";
-    for (const auto& p : points)
-      if (p.skipped)
-        std::cout << "  skip theta_l " << p.theta_l_deg << " theta_v " << p.theta_v_deg << ": "
-                  << p.reason << "\n";
-    if (dry_run) return 0;
-  }
-  auto st = config::OpenStages(*cfg);
-  if (!st.ok()) return Fail(st.error());
-  stages = std::move(st).value();
-  if (cfg->monitor.enabled) {
-    auto m = config::OpenMonitor(*cfg);
-    if (!m.ok()) return Fail(m.error());
-    monitor = std::move(m).value();
-  }
+  if (dry_run || *run_cmd)
+    if (Status st = PrintPlanSummary(store, plan_path, *plan, points, cfg->axes); !st.ok())
+      return Fail(st.error());
+  if (dry_run) return 0;
   if (*run_cmd) {
-    auto spec = store.EnsureSpecimen(plan->specimen);
-    if (!spec.ok()) return Fail(spec.error());
-    std::ifstream in(config_path);
+    std::ifstream file(config_path);
     std::stringstream text;
-    text << in.rdbuf();
-    auto cid = store.StoreConfig(text.str());
-    if (!cid.ok()) return Fail(cid.error());
-    auto id = store.CreateRun(*spec, *cid, plan->text, points);
+    text << file.rdbuf();
+    auto id = store.NewRun(*plan, text.str(), points);
     if (!id.ok()) return Fail(id.error());
     run_id = *id;
     std::cout << "run " << run_id << " created in " << db_path << std::endl;
   } else {
     std::cout << "resuming run " << run_id << std::endl;
   }
-  EngineOptions eo;
-  eo.linear_limit_adu = cfg->camera.linear_limit_adu;
-  Engine engine(*stages, *camera, monitor.monitor.get(), store, eo);
-  const Status s = engine.Run(run_id, *plan, g_stop, [](const Progress& p) {
-    std::printf(
-        "[%4d/%d] theta_l %5.1f theta_v %6.1f  exposure %-9.4g s  value %.5g +- %.2g  ETA %s\n",
-        p.done, p.total, p.point.theta_l_deg, p.point.theta_v_deg, p.last.exposure_s, p.last.value,
-        p.last.sigma, Duration(p.eta_s).c_str());
-    std::fflush(stdout);
-  });
-  if (!s.ok()) return Fail(s.error());
-  auto info = store.GetRun(run_id);
-  if (info.ok() && info->status == "paused") {
-    std::cout << "run " << run_id << " paused after " << info->points_done
-              << " points; continue with: gonio-acquire ... resume " << run_id << "\n";
-    return 3;
-  }
-  std::cout << "run " << run_id << " done\n";
-  return 0;
+  return Measure(store, in, *cfg, run_id, *plan);
 }

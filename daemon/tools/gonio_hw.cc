@@ -2,11 +2,13 @@
 // uses (issue #5). It reads the instrument config and opens only the device asked for.
 //
 //   gonio-hw -c config/instrument.toml camera info
-//   gonio-hw -c config/instrument.toml camera snap --exposure 0.2 --out frame.png --roi
-//   240,240,32,32 gonio-hw -c config/instrument.toml camera cool --setpoint -20 --hold 30 gonio-hw
-//   -c config/instrument.toml stage status gonio-hw -c config/instrument.toml stage home gonio-hw
-//   -c config/instrument.toml stage move sample=30 arm=210 gonio-hw -c config/instrument.toml stage
-//   reset sample gonio-hw -c config/instrument.toml monitor read --count 5
+//   gonio-hw -c config/instrument.toml camera snap --exposure 0.2 --out frame.png
+//       --roi 240,240,32,32    (statistics over a region)
+//   gonio-hw -c config/instrument.toml camera cool --setpoint -20 --hold 30
+//   gonio-hw -c config/instrument.toml stage status | home | stop
+//   gonio-hw -c config/instrument.toml stage move sample=30 arm=210
+//   gonio-hw -c config/instrument.toml stage reset sample
+//   gonio-hw -c config/instrument.toml monitor read --count 5
 //
 // Exit codes: 0 done; 1 a device failed (the message says how); 2 bad command line or config.
 #include <CLI/CLI.hpp>
@@ -17,6 +19,7 @@
 #include <sstream>
 
 #include "config/instrument_config.h"
+#include "daemon/instrument/instrument.h"
 
 namespace {
 
@@ -43,9 +46,9 @@ Result<cv::Rect> ParseRoi(const std::string& text, const cv::Size& image) {
 int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action, double exposure,
                   const std::string& out, const std::string& roi_text, double setpoint,
                   double tolerance, double hold, double timeout, bool off) {
-  auto cam = config::OpenCamera(cfg);
+  auto cam = daemon::OpenCamera(cfg);
   if (!cam.ok()) return Fail(cam.error());
-  drivers::Camera& c = **cam;
+  devices::Camera& c = **cam;
   if (action == "info") {
     auto t = c.TemperatureC();
     auto e = c.Exposure();
@@ -84,7 +87,7 @@ int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action
       Status s = c.SetCooling(false, 20);
       return s.ok() ? 0 : Fail(s.error());
     }
-    drivers::TemperatureWait w;
+    devices::TemperatureWait w;
     w.setpoint_c = setpoint;
     w.tolerance_c = tolerance;
     w.hold_s = hold;
@@ -101,9 +104,9 @@ int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action
 
 int StageCommand(const config::InstrumentConfig& cfg, const std::string& action,
                  const std::vector<std::string>& args) {
-  auto st = config::OpenStages(cfg);
+  auto st = daemon::OpenStages(cfg);
   if (!st.ok()) return Fail(st.error());
-  drivers::StageController& c = **st;
+  devices::StageController& c = **st;
   auto print = [&](const std::string& name) {
     auto s = c.ReadStatus(name);
     if (!s.ok()) return Fail(s.error());
@@ -159,7 +162,7 @@ int StageCommand(const config::InstrumentConfig& cfg, const std::string& action,
 
 int MonitorCommand(const config::InstrumentConfig& cfg, const std::string& action, int count) {
   if (!cfg.monitor.enabled) return Fail(InvalidArgument("no [monitor] in the configuration"));
-  auto m = config::OpenMonitor(cfg);
+  auto m = daemon::OpenMonitor(cfg);
   if (!m.ok()) return Fail(m.error());
   if (action == "idn") {
     auto id = m->monitor->Identity();

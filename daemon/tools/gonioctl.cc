@@ -20,7 +20,6 @@
 // failed, suspended past its limit (fault), or the timeout.
 #include <httplib.h>
 
-#include <toml++/toml.h>
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <filesystem>
@@ -33,6 +32,8 @@
 
 #include <sys/wait.h>
 #include <unistd.h>
+
+#include "daemon/schedule/schedule.h"
 
 namespace {
 
@@ -157,22 +158,309 @@ void Bar(int done, int total, double eta_s, const std::string& state) {
             << "/" << total << "  " << state << "  ETA " << Duration(eta_s) << "   " << std::flush;
 }
 
+// What every subcommand shares: the API, how to print its replies, and waiting for the daemon.
+class Ctl {
+ public:
+  Ctl(std::string url, const std::string& token, bool as_json, double timeout_s)
+      : url_(std::move(url)), api_(url_, token), as_json_(as_json), timeout_s_(timeout_s) {}
+
+  Api& api() { return api_; }
+  const std::string& url() const { return url_; }
+  bool as_json() const { return as_json_; }
+
+  // A reply as JSON (--json) or through `human`; an error reply's message and exit code.
+  int Print(const Reply& r, const std::function<void(const json&)>& human) const {
+    if (r.status < 200 || r.status >= 300) return Failed(r, url_);
+    if (as_json_)
+      std::cout << r.j.dump(2) << "\n";
+    else
+      human(r.j);
+    return 0;
+  }
+
+  // Follows progress until the daemon is idle; the last job's outcome is the exit code.
+  int WaitIdle() {
+    const auto t0 = std::chrono::steady_clock::now();
+    std::int64_t last_run = 0;
+    while (true) {
+      Reply r = api_.Get("/api/v1/status");
+      if (r.status != 200) return Failed(r, url_);
+      const std::string state = r.j.value("state", "");
+      if (r.j["job"].is_object() && !r.j["job"]["run"].is_null())
+        last_run = r.j["job"]["run"].get<std::int64_t>();
+      if (r.j["progress"].is_object()) {
+        const json& p = r.j["progress"];
+        if (!as_json_) Bar(p.value("done", 0), p.value("total", 0), p.value("eta_s", 0.0), state);
+      }
+      if (state == "idle" && r.j.value("queued", 0) == 0) return Outcome(state, last_run);
+      if (state == "fault") {
+        std::cerr << "\ngonioctl: fault: " << r.j.value("reason", "") << "\n";
+        return 3;
+      }
+      if (timeout_s_ > 0 &&
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() >
+              timeout_s_) {
+        std::cerr << "\ngonioctl: still " << state << " after " << timeout_s_ << " s\n";
+        return 3;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    }
+  }
+
+ private:
+  int Outcome(const std::string& state, std::int64_t last_run) {
+    if (!as_json_ && ::isatty(2)) std::cerr << "\n";
+    Reply jobs = api_.Get("/api/v1/jobs");
+    std::string outcome = "done";
+    if (jobs.status == 200)
+      for (const json& j : jobs.j["jobs"])
+        if (!j["run"].is_null() && j["run"].get<std::int64_t>() == last_run)
+          outcome = j.value("state", "done");
+    if (as_json_)
+      std::cout << json{{"state", state}, {"run", last_run}, {"outcome", outcome}}.dump() << "\n";
+    else
+      std::cout << "idle; last run " << last_run << ": " << outcome << "\n";
+    return outcome == "done" ? 0 : 3;
+  }
+
+  std::string url_;
+  Api api_;
+  bool as_json_;
+  double timeout_s_;
+};
+
+std::string ReadText(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+int Submit(Ctl& ctl, const std::string& plan_path, int repeat, bool wait_after) {
+  const json body{{"name", plan_path}, {"plan", ReadText(plan_path)}, {"repeat", repeat}};
+  const int rc = ctl.Print(ctl.api().Post("/api/v1/jobs", body), [](const json& j) {
+    auto one = [](const json& x) {
+      std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
+    };
+    if (j.contains("jobs"))
+      for (const json& x : j["jobs"]) one(x);
+    else
+      one(j);
+  });
+  if (rc != 0 || !wait_after) return rc;
+  return ctl.WaitIdle();
+}
+
+void PrintScheduleEntry(const json& x) {
+  std::cout << "  line " << x["line"] << ": " << x["repeat"] << " x " << x.value("plan", "") << ": "
+            << x["points"] << " points";
+  if (x.value("skipped", 0) > 0) std::cout << " (" << x["skipped"] << " skipped)";
+  std::cout << ", about " << Duration(x.value("estimate_s", 0.0)) << " each (from "
+            << x.value("estimate_basis", std::string("?")) << ")";
+  if (!x["start_at_unix"].is_null()) {
+    const std::time_t t = x["start_at_unix"].get<std::int64_t>();
+    char b[32];
+    std::strftime(b, sizeof b, "%F %R", std::localtime(&t));
+    std::cout << "; not before " << b;
+  }
+  if (!x["cooler_setpoint_c"].is_null())
+    std::cout << "; first cool to " << x["cooler_setpoint_c"].get<double>() << " C";
+  if (!x["fit"].empty()) std::cout << "; fit " << x["fit"].dump() << " after each";
+  std::cout << "\n";
+}
+
+int Schedule(Ctl& ctl, const std::string& schedule_path, bool dry_run, bool wait_after) {
+  // The daemon validates everything; here only the plan files are found (by the schedule
+  // module's own reading of it) and read, relative to the schedule, with the schedule's line
+  // when one is missing.
+  const std::string text = ReadText(schedule_path);
+  auto refs = gonio::daemon::PlanReferences(text, schedule_path);
+  if (!refs.ok()) {
+    std::cerr << "gonioctl: " << refs.error().message << "\n";
+    return 2;
+  }
+  json plans = json::object();
+  for (const auto& ref : *refs) {
+    const auto file = std::filesystem::path(schedule_path).parent_path() / ref.name;
+    std::ifstream pf(file);
+    if (!pf) {
+      std::cerr << "gonioctl: " << schedule_path << ":" << ref.line << ": plan '" << ref.name
+                << "': cannot read " << file.string() << "\n";
+      return 2;
+    }
+    plans[ref.name] = ReadText(file.string());
+  }
+  const json body{
+      {"name", schedule_path}, {"schedule", text}, {"plans", plans}, {"dry_run", dry_run}};
+  const int rc = ctl.Print(ctl.api().Post("/api/v1/schedules", body), [&](const json& j) {
+    if (dry_run) {
+      std::cout << "schedule " << schedule_path << " (dry run; nothing queued):\n";
+      for (const json& x : j["jobs"]) PrintScheduleEntry(x);
+    } else {
+      for (const json& x : j["jobs"])
+        std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
+    }
+    std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
+              << " of bench time for motion and exposure (start times and cooling not "
+                 "counted)\n";
+  });
+  if (rc != 0 || !wait_after || dry_run) return rc;
+  return ctl.WaitIdle();
+}
+
+void PrintFit(const json& f) {
+  std::cout << "  " << std::setw(10) << f.value("model", "") << "  " << f.value("width_name", "")
+            << " " << f["width"]["value"] << " +- " << f["width"]["sigma"] << "  chi2/dof "
+            << f["reduced_chi2"] << "  " << f.value("status", "");
+  if (f.contains("samples")) std::cout << " (" << f["samples"].get<std::string>() << ")";
+  std::cout << "\n";
+}
+
+int Fits(Ctl& ctl, std::int64_t id) {
+  return ctl.Print(ctl.api().Get("/api/v1/runs/" + std::to_string(id) + "/fits"),
+                   [&](const json& j) {
+                     std::cout << "run " << id << ": " << j["fits"].size() << " stored fit(s)\n";
+                     for (const json& f : j["fits"]) PrintFit(f["summary"]);
+                   });
+}
+
+json ModelList(const std::string& models) {
+  json list = json::array();
+  std::stringstream ms(models);
+  for (std::string m; std::getline(ms, m, ',');) list.push_back(m);
+  return list;
+}
+
+int Fit(Ctl& ctl, std::int64_t id, const std::string& models) {
+  return ctl.Print(ctl.api().Post("/api/v1/runs/" + std::to_string(id) + "/fit",
+                                  {{"models", ModelList(models)}}),
+                   [&](const json& j) {
+                     std::cout << "run " << id << ":\n";
+                     for (const json& f : j["fits"]) PrintFit(f);
+                   });
+}
+
+int Queue(Ctl& ctl) {
+  return ctl.Print(ctl.api().Get("/api/v1/jobs"), [](const json& j) {
+    for (const json& x : j["jobs"]) {
+      std::cout << std::setw(5) << x["id"].get<std::int64_t>() << "  " << std::setw(10)
+                << x.value("state", "") << "  run " << std::setw(5)
+                << (x["run"].is_null() ? std::string("-") : x["run"].dump()) << "  "
+                << x.value("name", "");
+      if (!x.value("message", std::string()).empty())
+        std::cout << "  (" << x["message"].get<std::string>() << ")";
+      std::cout << "\n";
+    }
+  });
+}
+
+int Runs(Ctl& ctl) {
+  return ctl.Print(ctl.api().Get("/api/v1/runs"), [](const json& j) {
+    for (const json& r : j["runs"])
+      std::cout << std::setw(5) << r["id"].get<std::int64_t>() << "  " << std::setw(8)
+                << r.value("status", "") << "  " << r["points_done"] << "/"
+                << r["points_total"].get<int>() - r["points_skipped"].get<int>() << " points  "
+                << r.value("specimen", "") << "\n";
+  });
+}
+
+int Show(Ctl& ctl, std::int64_t id) {
+  return ctl.Print(ctl.api().Get("/api/v1/runs/" + std::to_string(id)), [](const json& r) {
+    std::cout << "run " << r["id"] << " (" << r.value("specimen", "")
+              << "): " << r.value("status", "") << ", " << r["points_done"] << " points\n";
+    std::cout << "theta_l  theta_v   value          sigma       exposure_s\n";
+    for (const json& m : r["measurements"])
+      std::cout << std::setw(7) << m["theta_l_deg"].get<double>() << "  " << std::setw(7)
+                << m["theta_v_deg"].get<double>() << "  " << std::setw(13)
+                << m["value"].get<double>() << "  " << std::setw(10) << m["sigma"].get<double>()
+                << "  " << m["exposure_s"].get<double>() << "\n";
+  });
+}
+
+// The run's CSV into `path`; 0 or the exit code, with the message printed.
+int SaveCsv(Ctl& ctl, std::int64_t id, const std::string& path) {
+  Reply r = ctl.api().Get("/api/v1/runs/" + std::to_string(id) + "/csv");
+  if (r.status != 200) return Failed(r, ctl.url());
+  std::ofstream f(path);
+  f << r.body;
+  if (!f) {
+    std::cerr << "gonioctl: " << path << ": cannot write\n";
+    return 1;
+  }
+  return 0;
+}
+
+int Export(Ctl& ctl, std::int64_t id, const std::string& out) {
+  if (int rc = SaveCsv(ctl, id, out); rc != 0) return rc;
+  std::cout << "wrote " << out << "\n";
+  return 0;
+}
+
+struct PlotOptions {
+  std::string out, models, fit_tool, plot_script;
+};
+
+// The run's fit as goniod stores it, drawn: gonio-fit runs the same protocol with the same
+// options (the run's specimen eta, no robust loss), so the curves are the stored fit's. It says
+// so, and what it ran.
+int Plot(Ctl& ctl, std::int64_t id, PlotOptions o) {
+  // An installed gonioctl uses its installed companions; one in the build tree, the build's.
+  const std::filesystem::path bin = std::filesystem::read_symlink("/proc/self/exe").parent_path();
+  if (o.fit_tool.empty()) o.fit_tool = Companion({bin / "gonio-fit", GONIO_FIT_TOOL});
+  if (o.plot_script.empty())
+    o.plot_script = Companion({bin / "../share/gonio/plot_fit.py", GONIO_PLOT_SCRIPT});
+  for (const auto& [what, path] : {std::pair<std::string, std::string>{"--gonio-fit", o.fit_tool},
+                                   {"--plot-script", o.plot_script}}) {
+    if (!std::filesystem::is_regular_file(path)) {
+      std::cerr << "gonioctl: " << path << ": not found; name it with " << what << "\n";
+      return 2;
+    }
+  }
+  Reply run = ctl.api().Get("/api/v1/runs/" + std::to_string(id));
+  if (run.status != 200) return Failed(run, ctl.url());
+  std::ostringstream eta;
+  eta << std::setprecision(17) << run.j.value("specimen_eta", 1.51);
+  std::error_code ec;
+  std::filesystem::create_directories(o.out, ec);
+  if (ec) {
+    std::cerr << "gonioctl: " << o.out << ": cannot create: " << ec.message() << "\n";
+    return 1;
+  }
+  const std::string stem = o.out + "/run" + std::to_string(id);
+  if (int rc = SaveCsv(ctl, id, stem + ".csv"); rc != 0) return rc;
+  const std::vector<std::string> fit_argv{o.fit_tool, stem + ".csv", "--model", o.models,
+                                          "--eta",    eta.str(),     "--out",   o.out};
+  std::cerr << "gonioctl: fitting with " << o.fit_tool << ", plotting with " << o.plot_script
+            << "\ngonioctl: the fit goniod stores (its protocol and options: --model " << o.models
+            << " --eta " << eta.str() << ", no robust loss), computed again for the curves\n";
+  if (int rc = RunProgram(fit_argv); rc != 0) {
+    std::cerr << "gonioctl: " << o.fit_tool << " failed (" << rc << ")\n";
+    return 1;
+  }
+  if (int rc = RunProgram({"/usr/bin/python3", o.plot_script, o.out, stem + ".png"}); rc != 0) {
+    std::cerr << "gonioctl: " << o.plot_script << " failed (" << rc << ")\n";
+    return 1;
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"gonioctl: control goniod"};
   app.require_subcommand(1);
-  std::string url = "http://127.0.0.1:8470", token_file, token;
+  std::string url = "http://127.0.0.1:8470", token_file;
   bool as_json = false;
   app.add_option("--url", url, "goniod's API")->capture_default_str();
   app.add_option("--token-file", token_file, "the daemon's token (for submit, pause, ...)");
   app.add_flag("--json", as_json, "print the daemon's JSON replies (for scripts)");
 
-  std::string plan_path, out;
+  std::string plan_path, out, schedule_path, models = "beckmann,ggx";
   int repeat = 1, position = 0;
-  bool wait_after = false;
+  bool wait_after = false, dry_run = false;
   std::int64_t id = 0;
   double timeout_s = 0;
+  PlotOptions po;
   auto* status = app.add_subcommand("status", "state, current job and progress");
   auto* submit = app.add_subcommand("submit", "queue a plan file");
   submit->add_option("plan", plan_path)->required()->check(CLI::ExistingFile);
@@ -193,8 +481,6 @@ int main(int argc, char** argv) {
   auto* exp = app.add_subcommand("export", "a run as the fitter's CSV");
   exp->add_option("run", id)->required();
   exp->add_option("--out", out)->required();
-  std::string schedule_path, models = "beckmann,ggx";
-  bool dry_run = false;
   auto* sched = app.add_subcommand("schedule", "queue a schedule's jobs");
   sched->add_option("file", schedule_path)->required()->check(CLI::ExistingFile);
   sched->add_flag("--dry-run", dry_run, "list what would run and how long it would take");
@@ -204,16 +490,15 @@ int main(int argc, char** argv) {
   fit->add_option("--model", models, "comma-separated models")->capture_default_str();
   auto* fits = app.add_subcommand("fits", "the fits stored with a run");
   fits->add_option("run", id)->required();
-  std::string fit_tool, plot_script;  // found beside gonioctl (installed) or in the build
-  auto* plot = app.add_subcommand("plot", "a run's fits and a PNG (gonio-fit, plot_fit.py)");
+  auto* plot = app.add_subcommand("plot", "a run's fit and a PNG (gonio-fit, plot_fit.py)");
   plot->add_option("run", id)->required();
-  plot->add_option("--out", out, "directory for the CSV, the fit's curves and run<N>.png")
+  plot->add_option("--out", po.out, "directory for the CSV, the fit's curves and run<N>.png")
       ->required();
   plot->add_option("--model", models, "comma-separated models")->capture_default_str();
   plot->add_option(
-      "--gonio-fit", fit_tool,
+      "--gonio-fit", po.fit_tool,
       "the fitter program (default: beside gonioctl when installed, else the build's)");
-  plot->add_option("--plot-script", plot_script,
+  plot->add_option("--plot-script", po.plot_script,
                    "fitting/tools/plot_fit.py (default: <prefix>/share/gonio/plot_fit.py when "
                    "installed, else the source tree's)");
   auto* wait = app.add_subcommand("wait", "follow progress until the daemon is idle");
@@ -223,6 +508,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e) == 0 ? 0 : 2;
   }
+  std::string token;
   if (!token_file.empty()) {
     std::ifstream in(token_file);
     if (!(in >> token)) {
@@ -230,262 +516,31 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  Api api(url, token);
-  auto print = [&](const Reply& r, const std::function<void(const json&)>& human) {
-    if (r.status < 200 || r.status >= 300) return Failed(r, url);
-    if (as_json)
-      std::cout << r.j.dump(2) << "\n";
-    else
-      human(r.j);
-    return 0;
-  };
-
-  auto wait_idle = [&]() -> int {
-    const auto t0 = std::chrono::steady_clock::now();
-    std::int64_t last_run = 0;
-    while (true) {
-      Reply r = api.Get("/api/v1/status");
-      if (r.status != 200) return Failed(r, url);
-      const std::string state = r.j.value("state", "");
-      if (r.j["job"].is_object() && !r.j["job"]["run"].is_null())
-        last_run = r.j["job"]["run"].get<std::int64_t>();
-      if (r.j["progress"].is_object()) {
-        const json& p = r.j["progress"];
-        if (!as_json) Bar(p.value("done", 0), p.value("total", 0), p.value("eta_s", 0.0), state);
-      }
-      if (state == "idle" && r.j.value("queued", 0) == 0) {
-        if (!as_json && ::isatty(2)) std::cerr << "\n";
-        // The last job's outcome decides the exit code.
-        Reply jobs = api.Get("/api/v1/jobs");
-        std::string outcome = "done";
-        if (jobs.status == 200)
-          for (const json& j : jobs.j["jobs"])
-            if (!j["run"].is_null() && j["run"].get<std::int64_t>() == last_run)
-              outcome = j.value("state", "done");
-        if (as_json)
-          std::cout << json{{"state", state}, {"run", last_run}, {"outcome", outcome}}.dump()
-                    << "\n";
-        else
-          std::cout << "idle; last run " << last_run << ": " << outcome << "\n";
-        return outcome == "done" ? 0 : 3;
-      }
-      if (state == "fault") {
-        std::cerr << "\ngonioctl: fault: " << r.j.value("reason", "") << "\n";
-        return 3;
-      }
-      if (timeout_s > 0 &&
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() >
-              timeout_s) {
-        std::cerr << "\ngonioctl: still " << state << " after " << timeout_s << " s\n";
-        return 3;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(500));
-    }
-  };
-
-  if (*status) return print(api.Get("/api/v1/status"), PrintStatus);
-  if (*submit) {
-    std::ifstream in(plan_path);
-    std::stringstream text;
-    text << in.rdbuf();
-    const int rc = print(
-        api.Post("/api/v1/jobs", {{"name", plan_path}, {"plan", text.str()}, {"repeat", repeat}}),
-        [](const json& j) {
-          auto one = [](const json& x) {
-            std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
-          };
-          if (j.contains("jobs"))
-            for (const json& x : j["jobs"]) one(x);
-          else
-            one(j);
-        });
-    if (rc != 0 || !wait_after) return rc;
-    return wait_idle();
-  }
-  if (*sched) {
-    // The daemon validates everything; here only the plan files are found and read, relative to
-    // the schedule, with the schedule's line when one is missing.
-    std::ifstream in(schedule_path);
-    std::stringstream text;
-    text << in.rdbuf();
-    json plans = json::object();
-    try {
-      const toml::table root = toml::parse(text.str(), schedule_path);
-      if (const toml::array* jobs = root["job"].as_array()) {
-        for (const toml::node& n : *jobs) {
-          const toml::table* t = n.as_table();
-          const toml::node* p = t ? t->get("plan") : nullptr;
-          const auto name = p ? p->value<std::string>() : std::nullopt;
-          if (!name || plans.contains(*name)) continue;  // the daemon names what is wrong
-          const auto file = std::filesystem::path(schedule_path).parent_path() / *name;
-          std::ifstream pf(file);
-          if (!pf) {
-            std::cerr << "gonioctl: " << schedule_path << ":" << p->source().begin.line
-                      << ": plan '" << *name << "': cannot read " << file.string() << "\n";
-            return 2;
-          }
-          std::stringstream pt;
-          pt << pf.rdbuf();
-          plans[*name] = pt.str();
-        }
-      }
-    } catch (const toml::parse_error& e) {
-      std::cerr << "gonioctl: " << schedule_path << ":" << e.source().begin.line << ": "
-                << e.description() << "\n";
-      return 2;
-    }
-    const json body{
-        {"name", schedule_path}, {"schedule", text.str()}, {"plans", plans}, {"dry_run", dry_run}};
-    const int rc = print(api.Post("/api/v1/schedules", body), [&](const json& j) {
-      if (dry_run) {
-        std::cout << "schedule " << schedule_path << " (dry run; nothing queued):\n";
-        for (const json& x : j["jobs"]) {
-          std::cout << "  line " << x["line"] << ": " << x["repeat"] << " x " << x.value("plan", "")
-                    << ": " << x["points"] << " points";
-          if (x.value("skipped", 0) > 0) std::cout << " (" << x["skipped"] << " skipped)";
-          std::cout << ", about " << Duration(x.value("estimate_s", 0.0)) << " each (from "
-                    << x.value("estimate_basis", std::string("?")) << ")";
-          if (!x["start_at_unix"].is_null()) {
-            const std::time_t t = x["start_at_unix"].get<std::int64_t>();
-            char b[32];
-            std::strftime(b, sizeof b, "%F %R", std::localtime(&t));
-            std::cout << "; not before " << b;
-          }
-          if (!x["cooler_setpoint_c"].is_null())
-            std::cout << "; first cool to " << x["cooler_setpoint_c"].get<double>() << " C";
-          if (!x["fit"].empty()) std::cout << "; fit " << x["fit"].dump() << " after each";
-          std::cout << "\n";
-        }
-      } else {
-        for (const json& x : j["jobs"])
-          std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
-      }
-      std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
-                << " of bench time for motion and exposure (start times and cooling not "
-                   "counted)\n";
-    });
-    if (rc != 0 || !wait_after || dry_run) return rc;
-    return wait_idle();
-  }
-  auto print_fit = [](const json& f) {
-    std::cout << "  " << std::setw(10) << f.value("model", "") << "  " << f.value("width_name", "")
-              << " " << f["width"]["value"] << " +- " << f["width"]["sigma"] << "  chi2/dof "
-              << f["reduced_chi2"] << "  " << f.value("status", "");
-    if (f.contains("samples")) std::cout << " (" << f["samples"].get<std::string>() << ")";
-    std::cout << "\n";
-  };
-  if (*fits)
-    return print(api.Get("/api/v1/runs/" + std::to_string(id) + "/fits"), [&](const json& j) {
-      std::cout << "run " << id << ": " << j["fits"].size() << " stored fit(s)\n";
-      for (const json& f : j["fits"]) print_fit(f["summary"]);
-    });
-  if (*fit) {
-    json list = json::array();
-    std::stringstream ms(models);
-    for (std::string m; std::getline(ms, m, ',');) list.push_back(m);
-    return print(api.Post("/api/v1/runs/" + std::to_string(id) + "/fit", {{"models", list}}),
-                 [&](const json& j) {
-                   std::cout << "run " << id << ":\n";
-                   for (const json& f : j["fits"]) print_fit(f);
-                 });
-  }
-  if (*queue)
-    return print(api.Get("/api/v1/jobs"), [](const json& j) {
-      for (const json& x : j["jobs"]) {
-        std::cout << std::setw(5) << x["id"].get<std::int64_t>() << "  " << std::setw(10)
-                  << x.value("state", "") << "  run " << std::setw(5)
-                  << (x["run"].is_null() ? std::string("-") : x["run"].dump()) << "  "
-                  << x.value("name", "");
-        if (!x.value("message", std::string()).empty())
-          std::cout << "  (" << x["message"].get<std::string>() << ")";
-        std::cout << "\n";
-      }
-    });
+  Ctl ctl(url, token, as_json, timeout_s);
+  Api& api = ctl.api();
+  if (*status) return ctl.Print(api.Get("/api/v1/status"), PrintStatus);
+  if (*submit) return Submit(ctl, plan_path, repeat, wait_after);
+  if (*sched) return Schedule(ctl, schedule_path, dry_run, wait_after);
+  if (*fits) return Fits(ctl, id);
+  if (*fit) return Fit(ctl, id, models);
+  if (*queue) return Queue(ctl);
   if (*cancel)
-    return print(api.Delete("/api/v1/jobs/" + std::to_string(id)),
-                 [](const json& j) { std::cout << "job " << j["id"] << " cancelled\n"; });
+    return ctl.Print(api.Delete("/api/v1/jobs/" + std::to_string(id)),
+                     [](const json& j) { std::cout << "job " << j["id"] << " cancelled\n"; });
   if (*move)
-    return print(
+    return ctl.Print(
         api.Post("/api/v1/jobs/" + std::to_string(id) + "/position", {{"position", position}}),
         [&](const json&) { std::cout << "job " << id << " moved\n"; });
-  if (*pause) return print(api.Post("/api/v1/pause", json::object()), PrintStatus);
-  if (*resume) return print(api.Post("/api/v1/resume", json::object()), PrintStatus);
-  if (*abort) return print(api.Post("/api/v1/abort", json::object()), PrintStatus);
-  if (*runs)
-    return print(api.Get("/api/v1/runs"), [](const json& j) {
-      for (const json& r : j["runs"])
-        std::cout << std::setw(5) << r["id"].get<std::int64_t>() << "  " << std::setw(8)
-                  << r.value("status", "") << "  " << r["points_done"] << "/"
-                  << r["points_total"].get<int>() - r["points_skipped"].get<int>() << " points  "
-                  << r.value("specimen", "") << "\n";
-    });
-  if (*show)
-    return print(api.Get("/api/v1/runs/" + std::to_string(id)), [](const json& r) {
-      std::cout << "run " << r["id"] << " (" << r.value("specimen", "")
-                << "): " << r.value("status", "") << ", " << r["points_done"] << " points\n";
-      std::cout << "theta_l  theta_v   value          sigma       exposure_s\n";
-      for (const json& m : r["measurements"])
-        std::cout << std::setw(7) << m["theta_l_deg"].get<double>() << "  " << std::setw(7)
-                  << m["theta_v_deg"].get<double>() << "  " << std::setw(13)
-                  << m["value"].get<double>() << "  " << std::setw(10) << m["sigma"].get<double>()
-                  << "  " << m["exposure_s"].get<double>() << "\n";
-    });
-  if (*exp) {
-    Reply r = api.Get("/api/v1/runs/" + std::to_string(id) + "/csv");
-    if (r.status != 200) return Failed(r, url);
-    std::ofstream f(out);
-    f << r.body;
-    if (!f) {
-      std::cerr << "gonioctl: " << out << ": cannot write\n";
-      return 1;
-    }
-    std::cout << "wrote " << out << "\n";
-    return 0;
-  }
+  if (*pause) return ctl.Print(api.Post("/api/v1/pause", json::object()), PrintStatus);
+  if (*resume) return ctl.Print(api.Post("/api/v1/resume", json::object()), PrintStatus);
+  if (*abort) return ctl.Print(api.Post("/api/v1/abort", json::object()), PrintStatus);
+  if (*runs) return Runs(ctl);
+  if (*show) return Show(ctl, id);
+  if (*exp) return Export(ctl, id, out);
   if (*plot) {
-    // An installed gonioctl uses its installed companions; one in the build tree, the build's.
-    const std::filesystem::path bin = std::filesystem::read_symlink("/proc/self/exe").parent_path();
-    if (fit_tool.empty()) fit_tool = Companion({bin / "gonio-fit", GONIO_FIT_TOOL});
-    if (plot_script.empty())
-      plot_script = Companion({bin / "../share/gonio/plot_fit.py", GONIO_PLOT_SCRIPT});
-    for (const auto& [what, path] : {std::pair<std::string, std::string>{"--gonio-fit", fit_tool},
-                                     {"--plot-script", plot_script}}) {
-      if (!std::filesystem::is_regular_file(path)) {
-        std::cerr << "gonioctl: " << path << ": not found; name it with " << what << "\n";
-        return 2;
-      }
-    }
-    std::cerr << "gonioctl: fitting with " << fit_tool << ", plotting with " << plot_script << "\n";
-    Reply r = api.Get("/api/v1/runs/" + std::to_string(id) + "/csv");
-    if (r.status != 200) return Failed(r, url);
-    std::error_code ec;
-    std::filesystem::create_directories(out, ec);
-    if (ec) {
-      std::cerr << "gonioctl: " << out << ": cannot create: " << ec.message() << "\n";
-      return 1;
-    }
-    const std::string stem = out + "/run" + std::to_string(id);
-    {
-      std::ofstream f(stem + ".csv");
-      f << r.body;
-      if (!f) {
-        std::cerr << "gonioctl: " << stem << ".csv: cannot write\n";
-        return 1;
-      }
-    }
-    // A robust loss: the bench's stray-light floor flattens the far tails (docs/fitting.md).
-    if (int rc = RunProgram(
-            {fit_tool, stem + ".csv", "--model", models, "--loss", "huber", "--out", out});
-        rc != 0) {
-      std::cerr << "gonioctl: " << fit_tool << " failed (" << rc << ")\n";
-      return 1;
-    }
-    if (int rc = RunProgram({"/usr/bin/python3", plot_script, out, stem + ".png"}); rc != 0) {
-      std::cerr << "gonioctl: " << plot_script << " failed (" << rc << ")\n";
-      return 1;
-    }
-    return 0;
+    po.models = models;
+    return Plot(ctl, id, po);
   }
-  if (*wait) return wait_idle();
+  if (*wait) return ctl.WaitIdle();
   return 2;
 }

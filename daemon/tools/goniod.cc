@@ -23,6 +23,7 @@
 #include "acquisition/plan.h"
 #include "config/instrument_config.h"
 #include "daemon/api/http_api.h"
+#include "daemon/instrument/instrument.h"
 #include "daemon/service/controller.h"
 
 namespace {
@@ -109,27 +110,14 @@ int main(int argc, char** argv) {
   auto db = acquisition::Storage::Open(db_path);
   if (!db.ok()) return Fail(db.error());
 
-  auto camera = config::OpenCamera(*cfg);
-  if (!camera.ok()) return Fail(camera.error());
-  auto size = (*camera)->ImageSize();
-  if (!size.ok()) return Fail(size.error());
-  auto stages = config::OpenStages(*cfg);
-  if (!stages.ok()) return Fail(stages.error());
-  config::OpenedMonitor monitor;
-  if (cfg->monitor.enabled) {
-    auto m = config::OpenMonitor(*cfg);
-    if (!m.ok()) return Fail(m.error());
-    monitor = std::move(*m);
-  }
-  std::cout << Timestamp() << " [device] camera " << (*camera)->Identity() << ", " << size->width
-            << " x " << size->height << "; " << cfg->axes.size() << " axes"
-            << (monitor.monitor ? "; source monitor" : "; no source monitor") << std::endl;
+  auto instrument = daemon::OpenInstrument(*cfg, *specimens);
+  if (!instrument.ok()) return Fail(instrument.error());
+  daemon::Instrument& in = *instrument;
+  std::cout << Timestamp() << " [device] camera " << in.camera->Identity() << ", "
+            << in.context.image_width << " x " << in.context.image_height << "; "
+            << cfg->axes.size() << " axes"
+            << (in.monitor.monitor ? "; source monitor" : "; no source monitor") << std::endl;
 
-  acquisition::PlanContext ctx;
-  ctx.specimens = *specimens;
-  ctx.axes = cfg->axes;
-  ctx.image_width = size->width;
-  ctx.image_height = size->height;
   daemon::ControllerOptions co;
   co.engine.linear_limit_adu = cfg->camera.linear_limit_adu;
   co.suspenders.temperature_setpoint_c = setpoint;
@@ -138,12 +126,13 @@ int main(int argc, char** argv) {
   co.suspenders.poll_s = poll_s;
   co.suspenders.fault_give_up_s = give_up_s;
   {
-    std::ifstream in(config_path);
+    std::ifstream file(config_path);
     std::stringstream text;
-    text << in.rdbuf();
+    text << file.rdbuf();
     co.config_text = text.str();
   }
-  daemon::Controller controller(**stages, **camera, monitor.monitor.get(), **db, ctx, co);
+  daemon::Controller controller(*in.stages, *in.camera, in.monitor.monitor.get(), **db, in.context,
+                                co);
   std::thread logger([&controller] { LogEvents(controller.events()); });
   std::optional<bool> resume;
   if (on_start != "ignore") resume = on_start == "resume";
@@ -176,7 +165,7 @@ int main(int argc, char** argv) {
   controller.Shutdown();  // the run stays paused in the database; the stages stop
   (*api)->Stop();
   logger.join();
-  (void)(*stages)->StopAll();
+  (void)in.stages->StopAll();
   std::cout << Timestamp() << " [state] stopped" << std::endl;
   return 0;
 }

@@ -2,7 +2,7 @@
 // interface between two dielectrics, after Walter, Marschner, Li, Torrance 2007 (eq. 19-21), with
 // its importance sampling (eq. 38-41).
 //
-// Conventions (REFERENCE.md section 2) - read these before calling anything here:
+// Conventions (docs/reference.md section 2) - read these before calling anything here:
 //   * The macrosurface normal n is +z. Directions are unit vectors pointing AWAY from the surface.
 //   * eta is the index of the medium BELOW the rough surface (z < 0) relative to the medium ABOVE
 //     (z > 0). On the bench the light side (air) is above and the glass (hemisphere side) below,
@@ -13,7 +13,7 @@
 //         f_t(i, o) / eta_o^2 = f_t(o, i) / eta_i^2          (reciprocity of refraction)
 //     with eta_i, eta_o the indices of the media of i and o. f_r(i, o) = f_r(o, i).
 //     Energy: for fixed light direction i, integral of (f_r + f_t)(i, o) |o.n| do <= 1.
-//   * The measured signal is S(l, v) = k f_t(l, v) |cos theta_l| (REFERENCE.md section 1).
+//   * The measured signal is S(l, v) = k f_t(l, v) |cos theta_l| (docs/reference.md section 1).
 //   * Light may arrive from either side. From below (the denser side when eta > 1) total
 //     internal reflection occurs; the microsurface is the same height field seen from underneath
 //     (facet normals are always taken in the upper hemisphere, as in pbrt-v4), which is

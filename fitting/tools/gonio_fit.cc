@@ -16,11 +16,13 @@
 #include <sstream>
 
 #include "fitting/fitter.h"
+#include "fitting/protocol.h"
 #include "fitting/samples_csv.h"
 #include "fitting/summary_json.h"
 
 namespace {
 
+using namespace gonio;
 using namespace gonio::fitting;
 
 std::vector<std::string> Split(const std::string& s) {
@@ -59,6 +61,72 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
   std::cout << "model choice: " << choice.reason << "\n";
 }
 
+// The paper's protocol: the normal-incidence fits and their predictions of the other incidences.
+void PrintProtocol(const ProtocolResult& r) {
+  PrintFits("Fit at normal incidence (Walter 2007 section 6, Figure 12):", r.normal_fits,
+            SelectModel(r.normal_fits));
+  std::cout << "\nPrediction of the other incidences from the normal-incidence fit "
+               "(rms relative error over samples above 1 % of peak; chi2/n):\n";
+  std::cout << std::left << std::setw(12) << "theta_l";
+  for (const auto& f : r.normal_fits) std::cout << std::setw(28) << Describe(f.model);
+  std::cout << "\n";
+  for (std::size_t g = 0; g < r.groups.size(); ++g) {
+    std::cout << std::setw(12) << r.groups[g].theta_l_deg;
+    for (const auto& p : r.predictions) {
+      std::ostringstream cell;
+      cell << std::setprecision(3) << 100 * p[g].rms_relative << " %  (" << p[g].reduced_chi2
+           << ")";
+      std::cout << std::setw(28) << cell.str();
+    }
+    std::cout << "\n";
+  }
+}
+
+// --out: the curves of the fits that describe the lobe, the empirical and fitted D, and the JSON
+// summary of every fit and the model choice.
+Status WriteOutputs(const std::string& out_dir, const std::string& csv_path,
+                    std::span<const Sample> samples, const ProtocolResult& result) {
+  const std::vector<FitSummary>& normal_fits = result.normal_fits;
+  const std::vector<FitSummary>& joint_fits = result.joint_fits;
+  const ModelChoice& choice = result.choice;
+  std::error_code ec;
+  std::filesystem::create_directories(out_dir, ec);
+  if (ec) return InvalidArgument(out_dir + ": cannot create: " + ec.message());
+  const auto& curve_fits = result.curve_fits();
+  std::ofstream curves(out_dir + "/fit_curves.csv");
+  curves << "theta_l_deg,theta_v_deg,value,sigma";
+  for (const auto& f : curve_fits) curves << ",pred_" << Name(f.model.family);
+  curves << "\n" << std::setprecision(10);
+  for (const Sample& s : samples) {
+    curves << ThetaLightDeg(s) << ',' << ThetaViewDeg(s) << ',' << s.value << ',' << s.sigma;
+    for (const auto& f : curve_fits) curves << ',' << Predict(f, s);
+    curves << "\n";
+  }
+  std::ofstream emp(out_dir + "/empirical_d.csv");
+  emp << "model,theta_h_deg,d,d_sigma\n" << std::setprecision(10);
+  for (const auto& f : curve_fits)
+    for (const auto& p : EmpiricalD(samples, f.scale.value, f.eta.value))
+      emp << Name(f.model.family) << ',' << p.theta_h_deg << ',' << p.d << ',' << p.d_sigma << "\n";
+  std::ofstream fd(out_dir + "/fitted_d.csv");
+  fd << "theta_h_deg";
+  for (const auto& f : curve_fits) fd << ",d_" << Name(f.model.family);
+  fd << "\n" << std::setprecision(10);
+  for (double t = 0; t <= 80.0 + 1e-9; t += 0.25) {
+    fd << t;
+    for (const auto& f : curve_fits) fd << ',' << FittedD(f, t);
+    fd << "\n";
+  }
+  nlohmann::json j;
+  j["samples"] = csv_path;
+  for (const auto& f : normal_fits) j["normal_incidence_fits"].push_back(ToJson(f));
+  for (const auto& f : joint_fits) j["fits"].push_back(ToJson(f));
+  j["model_choice"] = {{"chosen", choice.chosen ? Describe(joint_fits[*choice.chosen].model) : ""},
+                       {"reason", choice.reason}};
+  std::ofstream(out_dir + "/fit_summary.json") << j.dump(2) << "\n";
+  if (!curves || !emp || !fd) return InvalidArgument(out_dir + ": writing the output files failed");
+  return OkStatus();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -94,16 +162,10 @@ int main(int argc, char** argv) {
     std::cerr << "gonio-fit: error: " << msg << "\n";
     return 2;
   };
-  std::vector<ModelSpec> models;
-  for (const std::string& name : Split(models_arg)) {
-    auto f = ParseFamily(name);
-    if (!f)
-      return fail_input("--model: unknown model '" + name +
-                        "' (known: beckmann, ggx, phong, sun2008)");
-    models.push_back(
-        {*f, rational ? gonio::optics::SmithG1::kRational : gonio::optics::SmithG1::kExact});
-  }
-  if (models.empty()) return fail_input("--model: no model named");
+  const auto names = Split(models_arg);
+  auto models = ParseModels(
+      names, rational ? gonio::optics::SmithG1::kRational : gonio::optics::SmithG1::kExact);
+  if (!models) return fail_input("--model: " + models.error().message);
   if (loss_arg == "huber")
     base.loss = Loss::kHuber;
   else if (loss_arg == "cauchy")
@@ -122,101 +184,26 @@ int main(int argc, char** argv) {
     return fail_input(s.error().message);
   if (systematic > 0) *samples = WithSystematic(*samples, systematic);
 
-  const auto groups = GroupByIncidence(*samples);
-  const IncidenceGroup* normal = nullptr;
-  for (const auto& g : groups)
-    if (std::abs(g.theta_l_deg) < 0.5) normal = &g;
-  std::cout << "gonio-fit: " << samples->size() << " samples from " << csv_path << ", "
-            << groups.size() << " incidence(s):";
-  for (const auto& g : groups) std::cout << " " << g.theta_l_deg << " (" << g.samples.size() << ")";
-  std::cout << "\n";
-
-  auto fit_all = [&](std::span<const Sample> data, std::vector<FitSummary>* fits) -> bool {
-    bool any = false;
-    for (const ModelSpec& m : models) {
-      FitOptions o = base;
-      o.model = m;
-      auto r = Fit(data, o);
-      if (!r) {
-        std::cerr << "gonio-fit: error: " << Describe(m) << ": " << r.error().message << "\n";
-        return false;
-      }
-      any = any || r->status != FitStatus::kFailed;
-      fits->push_back(*r);
-    }
-    return any;
-  };
-
-  // The paper's protocol when there is a normal-incidence sweep and others beside it.
-  std::vector<FitSummary> normal_fits, joint_fits;
-  const bool protocol = normal && groups.size() > 1;
-  bool any_ok = true;
-  if (protocol) {
-    if (!fit_all(normal->samples, &normal_fits)) return 1;
-    PrintFits("Fit at normal incidence (Walter 2007 section 6, Figure 12):", normal_fits,
-              SelectModel(normal_fits));
-    std::cout << "\nPrediction of the other incidences from the normal-incidence fit "
-                 "(rms relative error over samples above 1 % of peak; chi2/n):\n";
-    std::cout << std::left << std::setw(12) << "theta_l";
-    for (const auto& f : normal_fits) std::cout << std::setw(28) << Describe(f.model);
-    std::cout << "\n";
-    std::vector<std::vector<PredictionError>> pe;
-    for (const auto& f : normal_fits) pe.push_back(PredictIncidences(f, *samples));
-    for (std::size_t g = 0; g < groups.size(); ++g) {
-      std::cout << std::setw(12) << groups[g].theta_l_deg;
-      for (const auto& p : pe) {
-        std::ostringstream cell;
-        cell << std::setprecision(3) << 100 * p[g].rms_relative << " %  (" << p[g].reduced_chi2
-             << ")";
-        std::cout << std::setw(28) << cell.str();
-      }
-      std::cout << "\n";
-    }
+  auto run = RunProtocol(*samples, ProtocolOptions{.models = *models, .base = base});
+  if (!run) {
+    std::cerr << "gonio-fit: error: " << run.error().message << "\n";
+    return 1;
   }
-  any_ok = fit_all(*samples, &joint_fits);
-  const ModelChoice choice = SelectModel(joint_fits);
-  PrintFits(protocol ? "Joint fit of all incidences:" : "Fit:", joint_fits, choice);
+  const ProtocolResult& result = *run;
+  std::cout << "gonio-fit: " << samples->size() << " samples from " << csv_path << ", "
+            << result.groups.size() << " incidence(s):";
+  for (const auto& g : result.groups)
+    std::cout << " " << g.theta_l_deg << " (" << g.samples.size() << ")";
+  std::cout << "\n";
+  if (result.protocol) PrintProtocol(result);
+  PrintFits(result.protocol ? "Joint fit of all incidences:" : "Fit:", result.joint_fits,
+            result.choice);
 
   if (!out_dir.empty()) {
-    std::error_code ec;
-    std::filesystem::create_directories(out_dir, ec);
-    if (ec) return fail_input(out_dir + ": cannot create: " + ec.message());
-    const auto& curve_fits = protocol ? normal_fits : joint_fits;
-    std::ofstream curves(out_dir + "/fit_curves.csv");
-    curves << "theta_l_deg,theta_v_deg,value,sigma";
-    for (const auto& f : curve_fits) curves << ",pred_" << Name(f.model.family);
-    curves << "\n" << std::setprecision(10);
-    for (const Sample& s : *samples) {
-      curves << ThetaLightDeg(s) << ',' << ThetaViewDeg(s) << ',' << s.value << ',' << s.sigma;
-      for (const auto& f : curve_fits) curves << ',' << Predict(f, s);
-      curves << "\n";
-    }
-    std::ofstream emp(out_dir + "/empirical_d.csv");
-    emp << "model,theta_h_deg,d,d_sigma\n" << std::setprecision(10);
-    for (const auto& f : curve_fits)
-      for (const auto& p : EmpiricalD(*samples, f.scale.value, f.eta.value))
-        emp << Name(f.model.family) << ',' << p.theta_h_deg << ',' << p.d << ',' << p.d_sigma
-            << "\n";
-    std::ofstream fd(out_dir + "/fitted_d.csv");
-    fd << "theta_h_deg";
-    for (const auto& f : curve_fits) fd << ",d_" << Name(f.model.family);
-    fd << "\n" << std::setprecision(10);
-    for (double t = 0; t <= 80.0 + 1e-9; t += 0.25) {
-      fd << t;
-      for (const auto& f : curve_fits) fd << ',' << FittedD(f, t);
-      fd << "\n";
-    }
-    nlohmann::json j;
-    j["samples"] = csv_path;
-    for (const auto& f : normal_fits) j["normal_incidence_fits"].push_back(ToJson(f));
-    for (const auto& f : joint_fits) j["fits"].push_back(ToJson(f));
-    j["model_choice"] = {
-        {"chosen", choice.chosen ? Describe(joint_fits[*choice.chosen].model) : ""},
-        {"reason", choice.reason}};
-    std::ofstream(out_dir + "/fit_summary.json") << j.dump(2) << "\n";
-    if (!curves || !emp || !fd) return fail_input(out_dir + ": writing the output files failed");
+    if (Status w = WriteOutputs(out_dir, csv_path, *samples, result); !w.ok())
+      return fail_input(w.error().message);
     std::cout << "\nwrote " << out_dir
               << "/{fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json}\n";
   }
-  return any_ok ? 0 : 1;
+  return result.AnyFitted() ? 0 : 1;
 }

@@ -11,7 +11,7 @@
 // rendering and keeps answering GVCP.
 //
 // Registers (docs/camera_features.md): Aravis's fake camera implements those below 0x400; the
-// firmware owns 0x400 and up. Network rules (shared/DESIGN.md): loopback only, GVCP port 3956, so
+// firmware owns 0x400 and up. Network rules (docs/design.md): loopback only, GVCP port 3956, so
 // one GigE camera per machine (tests take the CTest RESOURCE_LOCK "gvcp").
 #pragma once
 

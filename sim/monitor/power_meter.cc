@@ -7,16 +7,14 @@
 #include <cstdlib>
 #include <vector>
 
-#include "drivers/monitor/usbtmc.h"
+#include "sim/monitor/usbtmc_device.h"
 
 namespace gonio::sim {
 
 namespace {
 
-using drivers::kUsbTmcStatusFailed;
-using drivers::kUsbTmcStatusSuccess;
-namespace req = drivers::usbtmc_request;
-namespace msg = drivers::usbtmc_msg;
+using usbtmc::kStatusFailed;
+using usbtmc::kStatusSuccess;
 
 std::string Upper(std::string s) {
   for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
@@ -119,15 +117,15 @@ Status SimulatedPowerMeter::BulkOut(const std::uint8_t* data, std::size_t n, int
   }
   if (Status s = Present(now); !s.ok()) return s;
   // A malformed header halts the endpoint, as a real device's STALL.
-  if (n < msg::kHeaderSize || data[2] != static_cast<std::uint8_t>(~data[1]) || data[1] == 0)
+  if (!usbtmc::ValidHeader(data, n))
     return Error{ErrorCode::kIo, "LIBUSB_ERROR_PIPE: source monitor stalled on a bad header"};
-  std::uint32_t size = 0;
-  for (int k = 0; k < 4; ++k) size |= std::uint32_t(data[4 + k]) << (8 * k);
-  if (data[0] == msg::kDevDepMsgOut) {
-    if (size > n - msg::kHeaderSize)
+  const std::uint32_t size = usbtmc::TransferSize(data);
+  if (data[0] == usbtmc::kDevDepMsgOut) {
+    if (size > n - usbtmc::kHeaderBytes)
       return Error{ErrorCode::kIo, "LIBUSB_ERROR_PIPE: TransferSize beyond the transfer"};
-    input_.append(reinterpret_cast<const char*>(data + msg::kHeaderSize), size);
-    if (data[8] & 0x01) {  // EOM: execute every complete line (';' separates commands too)
+    input_.append(reinterpret_cast<const char*>(data + usbtmc::kHeaderBytes), size);
+    if (data[usbtmc::kAttributesAt] &
+        usbtmc::kEom) {  // EOM: execute every complete line (';' separates commands too)
       std::string all;
       all.swap(input_);
       std::string cmd;
@@ -143,7 +141,7 @@ Status SimulatedPowerMeter::BulkOut(const std::uint8_t* data, std::size_t n, int
     }
     return OkStatus();
   }
-  if (data[0] == msg::kRequestDevDepMsgIn) {
+  if (data[0] == usbtmc::kRequestDevDepMsgIn) {
     in_tag_ = data[1];
     in_max_ = size;
     return OkStatus();
@@ -155,19 +153,18 @@ Result<std::size_t> SimulatedPowerMeter::BulkIn(std::uint8_t* data, std::size_t 
   std::lock_guard lock(mu_);
   if (Status s = Present(clock_.Now()); !s.ok()) return s.error();
   // Nothing requested, or nothing to say: the device NAKs until the host gives up.
-  if (!in_tag_ || output_.empty() || capacity < msg::kHeaderSize + 4)
+  if (!in_tag_ || output_.empty() || capacity < usbtmc::kHeaderBytes + 4)
     return Error{ErrorCode::kTimeout, "LIBUSB_ERROR_TIMEOUT: source monitor sent nothing"};
-  const std::size_t room = std::min<std::size_t>(in_max_, capacity - msg::kHeaderSize - 3);
+  const std::size_t room = std::min<std::size_t>(in_max_, capacity - usbtmc::kHeaderBytes - 3);
   const std::size_t size = std::min(output_.size(), room);
   const bool eom = size == output_.size();
-  const auto h = drivers::UsbTmcHeader(msg::kRequestDevDepMsgIn, *in_tag_,
-                                       static_cast<std::uint32_t>(size), eom);
+  const auto h = usbtmc::DevDepMsgInHeader(*in_tag_, static_cast<std::uint32_t>(size), eom);
   std::copy(h.begin(), h.end(), data);
   std::copy(output_.begin(), output_.begin() + static_cast<std::ptrdiff_t>(size),
-            data + msg::kHeaderSize);
+            data + usbtmc::kHeaderBytes);
   output_.erase(0, size);
   in_tag_.reset();
-  std::size_t total = msg::kHeaderSize + size;
+  std::size_t total = usbtmc::kHeaderBytes + size;
   while (total % 4) data[total++] = 0;
   return total;
 }
@@ -179,37 +176,37 @@ Result<std::vector<std::uint8_t>> SimulatedPowerMeter::ClassRequest(std::uint8_t
   if (Status s = Present(clock_.Now()); !s.ok()) return s.error();
   std::vector<std::uint8_t> r;
   switch (request) {
-    case req::kInitiateAbortBulkIn: {
+    case usbtmc::kInitiateAbortBulkIn: {
       const bool match = in_tag_ && *in_tag_ == static_cast<std::uint8_t>(value);
       // No transfer in progress with that tag: FAILED, as USBTMC 1.0 section 4.2.1.4 says.
-      r = {match || !output_.empty() ? kUsbTmcStatusSuccess : kUsbTmcStatusFailed,
+      r = {match || !output_.empty() ? kStatusSuccess : kStatusFailed,
            static_cast<std::uint8_t>(value)};
       in_tag_.reset();
       output_.clear();
       break;
     }
-    case req::kCheckAbortBulkInStatus:
-      r = {kUsbTmcStatusSuccess, 0, 0, 0, 0, 0, 0, 0};
+    case usbtmc::kCheckAbortBulkInStatus:
+      r = {kStatusSuccess, 0, 0, 0, 0, 0, 0, 0};
       break;
-    case req::kInitiateAbortBulkOut:
+    case usbtmc::kInitiateAbortBulkOut:
       input_.clear();
-      r = {kUsbTmcStatusSuccess, static_cast<std::uint8_t>(value)};
+      r = {kStatusSuccess, static_cast<std::uint8_t>(value)};
       break;
-    case req::kCheckAbortBulkOutStatus:
-      r = {kUsbTmcStatusSuccess, 0, 0, 0, 0, 0, 0, 0};
+    case usbtmc::kCheckAbortBulkOutStatus:
+      r = {kStatusSuccess, 0, 0, 0, 0, 0, 0, 0};
       break;
-    case req::kInitiateClear:
+    case usbtmc::kInitiateClear:
       input_.clear();
       output_.clear();
       in_tag_.reset();
-      r = {kUsbTmcStatusSuccess};
+      r = {kStatusSuccess};
       break;
-    case req::kCheckClearStatus:
-      r = {kUsbTmcStatusSuccess, 0};
+    case usbtmc::kCheckClearStatus:
+      r = {kStatusSuccess, 0};
       break;
-    case req::kGetCapabilities:
+    case usbtmc::kGetCapabilities:
       r.assign(24, 0);
-      r[0] = kUsbTmcStatusSuccess;
+      r[0] = kStatusSuccess;
       r[2] = 0x00, r[3] = 0x01;  // bcdUSBTMC 1.00
       break;
     default:

@@ -1,7 +1,7 @@
-// The simulated source monitor: a USBTMC optical power meter (PM100USB-like SCPI, REFERENCE.md
+// The simulated source monitor: a USBTMC optical power meter (PM100USB-like SCPI, docs/reference.md
 // section 4) watching the lamp, below the transport layer that libusb would provide. It speaks the
 // device side of USBTMC - bulk headers, bTag checks, responses split to the host's requested size,
-// the abort and clear class requests - so the driver's own framing (drivers/monitor/usbtmc.h)
+// the abort and clear class requests - so the driver's own framing (devices/usbtmc.h)
 // runs unchanged against it.
 //
 // SCPI (case-insensitive, short or long forms): *IDN?, *RST, *CLS, MEAS[:SCAL]:POW? (W),
@@ -21,7 +21,7 @@
 #include <random>
 #include <string>
 
-#include "drivers/monitor/usbtmc_transport.h"
+#include "devices/usbtmc_transport.h"
 #include "sim/clock.h"
 #include "sim/faults/fault_plan.h"
 #include "sim/scene/lamp.h"
@@ -34,7 +34,7 @@ struct PowerMeterOptions {
   double sample_s = 1e-3;
 };
 
-class SimulatedPowerMeter final : public drivers::UsbTmcTransport {
+class SimulatedPowerMeter final : public devices::UsbTmcTransport {
  public:
   // The clock, lamp and plan (may be null) must outlive the meter.
   SimulatedPowerMeter(const Clock& clock, const Lamp& lamp, PowerMeterOptions options = {},

@@ -1,5 +1,5 @@
-// The bench's finite apertures (REFERENCE.md section 1): the fibre source subtends 0.000076 sr at
-// the sample (610 mm), the camera lens 0.000039 sr (885 mm, f/5.6). A measured sample is the
+// The bench's finite apertures (docs/reference.md section 1): the fibre source subtends 0.000076 sr
+// at the sample (610 mm), the camera lens 0.000039 sr (885 mm, f/5.6). A measured sample is the
 // BTDF*cos averaged over both cones, not its value at one pair of directions. Whether that
 // matters depends on the lobe: "model no more than the scene needs" - the scene asks
 // ApertureMatters() and averages only where the difference exceeds what a measurement resolves.

@@ -1,5 +1,5 @@
-// The bench of Walter et al. 2007 section 6 (REFERENCE.md section 1) as the simulated camera sees
-// it: stage angles -> the light and view directions at the sample, and the image of the
+// The bench of Walter et al. 2007 section 6 (docs/reference.md section 1) as the simulated camera
+// sees it: stage angles -> the light and view directions at the sample, and the image of the
 // hemisphere lens, pixel by pixel, with the radiance the ground truth predicts.
 //
 // Frames (all lengths in mm, angles in degrees at the edges):

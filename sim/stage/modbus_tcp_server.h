@@ -1,5 +1,5 @@
 // The simulated stage controller over Modbus TCP (libmodbus), on the loopback interface only
-// (shared/DESIGN.md network rules): a real protocol server that the real driver (#5) and
+// (docs/design.md network rules): a real protocol server that the real driver (#5) and
 // third-party tools (mbpoll) talk to. Axis k answers unit identifier k + 1, with the register map
 // of docs/stage_register_map.md; an unknown unit gets exception 0x0B (gateway target failed to
 // respond), an address outside the map exception 0x02, as a real gateway would.

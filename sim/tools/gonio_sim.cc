@@ -16,16 +16,8 @@
 #include <iostream>
 #include <thread>
 
-#include "sim/camera/camera.h"
-#include "sim/clock.h"
-#include "sim/faults/fault_plan.h"
-#include "sim/monitor/monitor_server.h"
-#include "sim/monitor/power_meter.h"
+#include "sim/instrument.h"
 #include "sim/sim_config.h"
-#include "sim/stage/axis.h"
-#include "sim/stage/modbus_rtu_server.h"
-#include "sim/stage/modbus_tcp_server.h"
-#include "sim/truth/ground_truth.h"
 
 namespace {
 std::atomic<bool> g_stop{false};
@@ -70,67 +62,32 @@ int main(int argc, char** argv) {
   if (!rtu_link.empty()) cfg.rtu_link = rtu_link;
   if (monitor_port >= 0) cfg.monitor_port = monitor_port;
 
-  auto fail = [](const gonio::Error& e) {
-    std::cerr << "gonio-sim: error: " << e.message << "\n";
+  auto started = Instrument::Start(cfg);
+  if (!started) {
+    std::cerr << "gonio-sim: error: " << started.error().message << "\n";
     return 1;
-  };
-  ScaledClock clock(cfg.clock_speed);
-  FaultPlan plan(cfg.faults, cfg.fault_seed);
-  std::vector<std::unique_ptr<SimulatedAxis>> owned;
-  std::vector<SimulatedAxis*> raw;
-  for (const AxisConfig& a : cfg.axes) {
-    owned.push_back(std::make_unique<SimulatedAxis>(clock, a.options, a.role, &plan));
-    raw.push_back(owned.back().get());
   }
-  auto server = StageModbusTcpServer::Start(raw, cfg.modbus_port, &plan, &clock);
-  if (!server) return fail(server.error());
-  std::unique_ptr<StageModbusRtuServer> rtu;
-  if (!cfg.rtu_link.empty()) {
-    auto r = StageModbusRtuServer::Start(raw, cfg.rtu_link, &plan, &clock);
-    if (!r) return fail(r.error());
-    rtu = std::move(r).value();
-  }
-  const Lamp lamp(cfg.lamp, cfg.seed);
-  std::unique_ptr<SimulatedPowerMeter> meter;
-  std::unique_ptr<MonitorSocketServer> monitor;
-  if (cfg.monitor_enabled) {
-    meter = std::make_unique<SimulatedPowerMeter>(clock, lamp, cfg.monitor, cfg.seed, &plan);
-    auto m = MonitorSocketServer::Start(*meter, cfg.monitor_port);
-    if (!m) return fail(m.error());
-    monitor = std::move(m).value();
-  }
-  const Scene scene(cfg.bench, MicrofacetTruth(cfg.sample_model, cfg.sample_alpha, cfg.sample_eta),
-                    cfg.scene);
-  std::unique_ptr<SimulatedCamera> camera;
-  if (cfg.camera_enabled) {
-    auto angles = [&cfg, &raw] {
-      std::vector<double> steps;
-      for (const SimulatedAxis* a : raw) steps.push_back(a->PositionSteps());
-      return AnglesFromSteps(cfg.axes, steps);
-    };
-    auto cam = SimulatedCamera::StartGigE(clock, scene, angles, lamp, cfg.camera, &plan);
-    if (!cam) return fail(cam.error());
-    camera = std::move(cam).value();
-  }
+  Instrument& sim = **started;
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   // The Modbus port file last: scripts wait for it, then read the others.
-  if (!monitor_port_file.empty() && monitor)
-    std::ofstream(monitor_port_file) << monitor->port() << "\n";
-  if (!port_file.empty()) std::ofstream(port_file) << (*server)->port() << "\n";
+  if (!monitor_port_file.empty() && sim.monitor())
+    std::ofstream(monitor_port_file) << sim.monitor()->port() << "\n";
+  if (!port_file.empty()) std::ofstream(port_file) << sim.modbus_port() << "\n";
   std::cout << "gonio-sim: stage controller (" << cfg.axes.size() << " axes, unit ids 1.."
-            << cfg.axes.size() << ") on Modbus TCP 127.0.0.1:" << (*server)->port();
-  if (rtu) std::cout << " and Modbus RTU " << rtu->pty_path() << " (" << cfg.rtu_link << ")";
-  if (camera)
+            << cfg.axes.size() << ") on Modbus TCP 127.0.0.1:" << sim.modbus_port();
+  if (sim.rtu())
+    std::cout << " and Modbus RTU " << sim.rtu()->pty_path() << " (" << cfg.rtu_link << ")";
+  if (sim.camera())
     std::cout << "; camera " << cfg.camera.serial << " on GigE Vision " << cfg.camera.address;
-  if (monitor) std::cout << "; source monitor on 127.0.0.1:" << monitor->port();
-  std::cout << "; sample " << scene.truth().Name() << "; clock x" << cfg.clock_speed;
-  if (!plan.empty()) std::cout << "; " << cfg.faults.size() << " planned fault(s)";
+  if (sim.monitor()) std::cout << "; source monitor on 127.0.0.1:" << sim.monitor()->port();
+  std::cout << "; sample " << sim.scene().truth().Name() << "; clock x" << cfg.clock_speed;
+  if (!sim.faults().empty()) std::cout << "; " << cfg.faults.size() << " planned fault(s)";
   std::cout << "; Ctrl-C stops" << std::endl;
   std::size_t reported = 0;
   while (!g_stop) {
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    const auto fired = plan.Fired();  // the operator sees each injected fault as it happens
+    const auto fired = sim.faults().Fired();  // the operator sees each injected fault as it happens
     for (; reported < fired.size(); ++reported) {
       const FiredFault& f = fired[reported];
       std::cout << "gonio-sim: fault " << ToString(f.kind)
@@ -138,9 +95,7 @@ int main(int argc, char** argv) {
                 << std::endl;
     }
   }
-  camera.reset();  // stop the GigE camera before the stages it reads
-  monitor.reset();
-  rtu.reset();
+  started->reset();  // the camera first, then the servers (Instrument's destructor)
   std::cout << "gonio-sim: stopped" << std::endl;
   return 0;
 }

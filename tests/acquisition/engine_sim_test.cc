@@ -112,7 +112,7 @@ TEST_F(EngineOnSim, SweepReproducesTheGroundTruthWithHonestUncertaintiesOverFour
       "incidence_deg = [0, 30, 60, 80]\nview_about = \"refracted\"\n"
       "view_from_deg = -20\nview_to_deg = 20\nview_step_deg = 5",
       "frames = 4\ninitial_s = 0.01\nmax_s = 100\nfloor = 0.004");
-  Engine engine(*inst.stages, *inst.camera, inst.meter.get(), *store,
+  Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
                 EngineOptions{.linear_limit_adu = 65000});
   const auto rows = RunToEnd(engine, plan, run);
   ASSERT_EQ(rows.size(), 36u);
@@ -151,25 +151,25 @@ TEST_F(EngineOnSim, SweepReproducesTheGroundTruthWithHonestUncertaintiesOverFour
 // the engine moves while the last frame reads out; and the n-th retrieval can be lost.
 class OverlapProbe {
  public:
-  class Camera final : public drivers::Camera {
+  class Camera final : public devices::Camera {
    public:
-    Camera(drivers::Camera& inner, OverlapProbe& probe) : inner_(inner), probe_(probe) {}
+    Camera(devices::Camera& inner, OverlapProbe& probe) : inner_(inner), probe_(probe) {}
     std::string Identity() const override { return inner_.Identity(); }
     Status SetExposure(double s) override { return inner_.SetExposure(s); }
     Result<double> Exposure() override { return inner_.Exposure(); }
     Result<cv::Size> ImageSize() override { return inner_.ImageSize(); }
-    Result<drivers::Frame> Snap() override { return inner_.Snap(); }
+    Result<devices::Frame> Snap() override { return inner_.Snap(); }
     Result<double> TemperatureC() override { return inner_.TemperatureC(); }
     Status SetShutter(bool open) override { return inner_.SetShutter(open); }
     Status SetCooling(bool on, double sp) override { return inner_.SetCooling(on, sp); }
-    Status CoolAndWait(const drivers::TemperatureWait& w) override { return inner_.CoolAndWait(w); }
+    Status CoolAndWait(const devices::TemperatureWait& w) override { return inner_.CoolAndWait(w); }
     bool ReportsExposureEnd() const override { return inner_.ReportsExposureEnd(); }
     Status Expose() override {
       std::lock_guard lock(probe_.mu_);
       probe_.moves_since_expose_ = 0;
       return inner_.Expose();
     }
-    Result<drivers::Frame> Retrieve() override {
+    Result<devices::Frame> Retrieve() override {
       auto f = inner_.Retrieve();
       std::unique_lock lock(probe_.mu_);
       const int n = ++probe_.retrievals_;
@@ -181,13 +181,13 @@ class OverlapProbe {
     }
 
    private:
-    drivers::Camera& inner_;
+    devices::Camera& inner_;
     OverlapProbe& probe_;
   };
-  class Stages final : public drivers::StageController {
+  class Stages final : public devices::StageController {
    public:
-    Stages(drivers::StageController& inner, OverlapProbe& probe) : inner_(inner), probe_(probe) {}
-    const std::vector<drivers::AxisSettings>& axes() const override { return inner_.axes(); }
+    Stages(devices::StageController& inner, OverlapProbe& probe) : inner_(inner), probe_(probe) {}
+    const std::vector<devices::AxisSettings>& axes() const override { return inner_.axes(); }
     Status MoveTo(const std::vector<std::pair<std::string, double>>& targets) override {
       {
         std::lock_guard lock(probe_.mu_);
@@ -198,13 +198,13 @@ class OverlapProbe {
     }
     Status Home(const std::vector<std::string>& names) override { return inner_.Home(names); }
     Status StopAll() override { return inner_.StopAll(); }
-    Result<drivers::AxisStatus> ReadStatus(const std::string& name) override {
+    Result<devices::AxisStatus> ReadStatus(const std::string& name) override {
       return inner_.ReadStatus(name);
     }
     Status ResetAlarm(const std::string& name) override { return inner_.ResetAlarm(name); }
 
    private:
-    drivers::StageController& inner_;
+    devices::StageController& inner_;
     OverlapProbe& probe_;
   };
 
@@ -230,7 +230,7 @@ TEST_F(EngineOnSim, LastFramesReadOutWhileTheStagesMoveAndALostOneIsRetakenAtIts
   OverlapProbe::Camera camera(*inst.camera, probe);
   OverlapProbe::Stages stages(*inst.stages, probe);
   ASSERT_TRUE(camera.ReportsExposureEnd());
-  Engine engine(stages, camera, inst.meter.get(), *store, EngineOptions{.linear_limit_adu = 65000});
+  Engine engine(stages, camera, inst.meter, *store, EngineOptions{.linear_limit_adu = 65000});
   const auto rows = RunToEnd(engine, plan, run);
   // Ten points: nine last frames overlap a move; the run's last has none to overlap (its wait
   // times out, so it is the one "not overlapped"), and the lost one's retake is a plain Snap.
@@ -267,7 +267,7 @@ TEST_F(EngineOnSim, AReflectionSweepMeasuresTheBrdfAboutTheSpecularDirection) {
       "side = \"reflection\"\nincidence_deg = [30, 60]\nview_about = \"specular\"\n"
       "view_from_deg = -20\nview_to_deg = 20\nview_step_deg = 10",
       "frames = 3\ninitial_s = 0.01\nmax_s = 100\nfloor = 0.004");
-  Engine engine(*inst.stages, *inst.camera, inst.meter.get(), *store,
+  Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
                 EngineOptions{.linear_limit_adu = 65000});
   const auto rows = RunToEnd(engine, plan, run);
   ASSERT_EQ(rows.size(), 10u);
@@ -309,7 +309,7 @@ TEST_F(EngineDriftingLamp, MonitorNormalisationRemovesLampDrift) {
       "incidence_deg = [30]\nview_about = \"refracted\"\nview_from_deg = -4\nview_to_deg = 4\n"
       "view_step_deg = 4";
   const std::string exposure = "frames = 4\ninitial_s = 0.01";
-  auto measure = [&](drivers::SourceMonitor* monitor) {
+  auto measure = [&](devices::SourceMonitor* monitor) {
     auto [plan, run] = NewRun(geometry, exposure);
     Engine engine(*inst.stages, *inst.camera, monitor, *store,
                   EngineOptions{.linear_limit_adu = 65000});
@@ -321,9 +321,9 @@ TEST_F(EngineDriftingLamp, MonitorNormalisationRemovesLampDrift) {
     const double t0 = inst.clock->Now();
     while (inst.clock->Now() - t0 < s) std::this_thread::sleep_for(std::chrono::milliseconds(20));
   };
-  const auto first = measure(inst.meter.get());
+  const auto first = measure(inst.meter);
   wait_sim(60);
-  const auto second = measure(inst.meter.get());
+  const auto second = measure(inst.meter);
   const auto a = *store->Measurements(first);
   const auto b = *store->Measurements(second);
   ASSERT_EQ(a.size(), 3u);
@@ -368,7 +368,7 @@ TEST_P(EngineOnExplicitSurface, FitterRecoversThePredictedAlphaOrReportsAPoorFit
       "incidence_deg = [0]\nview_about = \"refracted\"\n"
       "view_from_deg = -40\nview_to_deg = 40\nview_step_deg = 2",
       "frames = 2\ninitial_s = 0.01\nmax_s = 10\nfloor = 0.004");
-  Engine engine(*inst.stages, *inst.camera, inst.meter.get(), *store,
+  Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
                 EngineOptions{.linear_limit_adu = 65000});
   std::atomic<bool> stop{false};
   const Status st = engine.Run(run, plan, stop);

@@ -16,9 +16,9 @@ PlanContext Context() {
   auto specimens = LoadSpecimens(GONIO_SOURCE_DIR "/config/samples.toml");
   EXPECT_TRUE(specimens.ok());
   if (specimens.ok()) c.specimens = *specimens;
-  drivers::AxisSettings sample{.name = "sample", .slave_id = 1};
+  devices::AxisSettings sample{.name = "sample", .slave_id = 1};
   sample.min_deg = -80, sample.max_deg = 80;
-  drivers::AxisSettings arm{.name = "arm", .slave_id = 2};
+  devices::AxisSettings arm{.name = "arm", .slave_id = 2};
   arm.min_deg = 0, arm.max_deg = 360;
   c.axes = {sample, arm};
   c.image_width = c.image_height = 512;

@@ -69,7 +69,7 @@ class DaemonApi : public ::testing::Test {
     co.suspenders = Suspend();
     co.config_text = "# test";
     controller =
-        std::make_unique<Controller>(*inst.stages, *inst.camera, inst.meter.get(), *store, ctx, co);
+        std::make_unique<Controller>(*inst.stages, *inst.camera, inst.meter, *store, ctx, co);
     const Status started = controller->Start(resume_interrupted);
     ASSERT_TRUE(started.ok()) << started.error().message;
     auto api = ApiServer::Start(
@@ -139,7 +139,7 @@ class DaemonApi : public ::testing::Test {
     auto j = controller->GetJob(job);
     EXPECT_TRUE(j.ok() && j->run);
     if (!j.ok() || !j->run) return 0;
-    EXPECT_EQ(j->state, "done") << j->message;
+    EXPECT_EQ(j->state, JobState::kDone) << j->message;
     ExpectComplete(*j->run);
     return *j->run;
   }
@@ -308,10 +308,10 @@ TEST_F(DaemonApi, PauseResumeAndAbortAtArbitraryMomentsLoseNothing) {
   ASSERT_TRUE(controller->WaitIdle(60));
   auto aborted = controller->GetJob(second);
   ASSERT_TRUE(aborted.ok() && aborted->run);
-  EXPECT_EQ(aborted->state, "aborted");
+  EXPECT_EQ(aborted->state, JobState::kAborted);
   auto info = store->GetRun(*aborted->run);
   ASSERT_TRUE(info.ok());
-  EXPECT_EQ(info->status, "aborted");
+  EXPECT_EQ(info->status, acquisition::RunStatus::kAborted);
   EXPECT_GE(info->points_done, 2);
   EXPECT_LT(info->points_done, 10);
   EXPECT_EQ(static_cast<int>(store->Measurements(*aborted->run)->size()), info->points_done);
@@ -414,7 +414,7 @@ TEST_F(DaemonApi, AScheduleWaitsForItsStartTimeCoolsRunsItsRepeatsAndFitsEachRun
   for (const json& j : queued["jobs"]) {
     auto job = controller->GetJob(j["id"].get<std::int64_t>());
     ASSERT_TRUE(job.ok() && job->run);
-    EXPECT_EQ(job->state, "done");
+    EXPECT_EQ(job->state, JobState::kDone);
     ExpectComplete(*job->run);
     // The fit after each run, stored with it: the simulated ground glass's alpha.
     auto [sf, fits] = Get("/api/v1/runs/" + std::to_string(*job->run) + "/fits");
@@ -466,15 +466,15 @@ TEST_F(DaemonApi, TheQueueSurvivesARestartInItsOrderWithItsOptions) {
   ASSERT_EQ(jobs.size(), 3u);
   EXPECT_EQ(jobs[0].id, b);
   EXPECT_EQ(jobs[1].id, a1);
-  EXPECT_EQ(jobs[0].state, "queued");
-  EXPECT_EQ(jobs[1].state, "queued");
+  EXPECT_EQ(jobs[0].state, JobState::kQueued);
+  EXPECT_EQ(jobs[1].state, JobState::kQueued);
   ASSERT_TRUE(jobs[1].cooler.has_value());
   EXPECT_EQ(jobs[1].cooler->setpoint_c, -12);
   EXPECT_EQ(jobs[1].fit, (std::vector<std::string>{"beckmann", "ggx"}));
   EXPECT_EQ(jobs[1].start_at_unix, later);
   EXPECT_EQ(jobs[1].schedule, "night.toml");
   EXPECT_EQ(jobs[2].id, a2);
-  EXPECT_EQ(jobs[2].state, "cancelled");
+  EXPECT_EQ(jobs[2].state, JobState::kCancelled);
   EXPECT_EQ(State(), "idle");
   // A job submitted now gets a new id, and cancelling works on the reloaded queue.
   const std::int64_t c = SubmitPlan();
@@ -510,11 +510,11 @@ TEST_F(DaemonApi, ADamagedStoredJobFailsAloneAndTheDaemonStillStarts) {
   StartDaemon(true);
   auto bad = controller->GetJob(damaged);
   ASSERT_TRUE(bad.ok());
-  EXPECT_EQ(bad->state, "failed");
+  EXPECT_EQ(bad->state, JobState::kFailed);
   EXPECT_NE(bad->message.find("stored options unreadable"), std::string::npos) << bad->message;
   auto good = controller->GetJob(kept);
   ASSERT_TRUE(good.ok());
-  EXPECT_EQ(good->state, "queued");
+  EXPECT_EQ(good->state, JobState::kQueued);
   EXPECT_EQ(State(), "idle");
   ASSERT_TRUE(controller->Cancel(kept).ok());
 }
@@ -537,7 +537,7 @@ TEST_F(DaemonApi, AnInterruptedScheduledJobKeepsItsCoolerWaitAndFitsAfterARestar
   EXPECT_EQ(State(), "paused");
   auto held = controller->GetJob(job);
   ASSERT_TRUE(held.ok());
-  EXPECT_EQ(held->state, "paused");
+  EXPECT_EQ(held->state, JobState::kPaused);
   ASSERT_TRUE(held->run.has_value());
   EXPECT_EQ(held->fit, std::vector<std::string>{"beckmann"});
   const std::int64_t run = *held->run;
@@ -572,7 +572,7 @@ class DaemonSuspender : public DaemonApi {
 };
 
 TEST_F(DaemonSuspender, ACoolerFailureSuspendsTheRunUntilTheSensorIsBackInBand) {
-  drivers::TemperatureWait w;
+  devices::TemperatureWait w;
   w.setpoint_c = -10;
   w.hold_s = 0.2;
   w.timeout_s = 30;

@@ -118,6 +118,20 @@ ctl --json status | grep -q '"state": "idle"' || fail "not idle after the run"
 ctl plot 1 --out "$work/plot" > "$work/plot.out" 2>&1 || fail "plot: $(cat "$work/plot.out")"
 [[ "$(head -c 4 "$work/plot/run1.png" | tail -c 3)" == PNG ]] || fail "plot: no PNG"
 grep -q "fitting with $build/" "$work/plot.out" || fail "plot did not use the build's fitter"
+# The plot draws the fit goniod stores: the same width as the stored Beckmann fit.
+ctl fit 1 --model beckmann > /dev/null || fail "fit 1"
+ctl plot 1 --model beckmann --out "$work/plot_b" > "$work/plot_b.out" 2>&1 ||
+  fail "plot --model beckmann: $(cat "$work/plot_b.out")"
+ctl --json fits 1 > "$work/fits.json" || fail "fits 1"
+/usr/bin/python3 - "$work/fits.json" "$work/plot_b/fit_summary.json" <<'PY' || fail "the plot's fit is not the stored one"
+import json, sys
+stored = json.load(open(sys.argv[1]))["fits"][-1]["summary"]
+plot = json.load(open(sys.argv[2]))
+drawn = (plot.get("normal_incidence_fits") or plot["fits"])[0]
+a, b = stored["width"]["value"], drawn["width"]["value"]
+print(f"stored width {a:.8g}, plotted width {b:.8g}")
+sys.exit(0 if abs(a - b) <= 1e-6 * abs(a) else 1)
+PY
 # Installed, gonioctl finds the installed fitter and plot script, not the build's.
 cmake --install "$build" --prefix "$work/prefix" > "$work/install.out" 2>&1 ||
   fail "install: $(cat "$work/install.out")"

@@ -14,7 +14,7 @@
 namespace gonio::fitting {
 namespace {
 
-// Walter 2007 Figure 12 (REFERENCE.md): scale and alpha per sample, Beckmann and GGX.
+// Walter 2007 Figure 12 (docs/reference.md): scale and alpha per sample, Beckmann and GGX.
 struct Row {
   const char* sample;
   double beckmann_scale, beckmann_alpha, ggx_scale, ggx_alpha;

@@ -10,7 +10,7 @@
 #include <thread>
 #include <vector>
 
-#include "drivers/monitor/scpi_power_meter.h"
+#include "devices/scpi_power_meter.h"
 #include "fitting/optics/microfacet.h"
 #include "sim/camera/camera.h"
 #include "sim/monitor/power_meter.h"
@@ -220,7 +220,7 @@ class CameraGigEDriftingLamp : public CameraGigETest {
 
 TEST_F(CameraGigEDriftingLamp, FramesAndMonitorFollowTheLampTogether) {
   SimulatedPowerMeter meter_device(clock_, *lamp_);
-  drivers::ScpiPowerMeter meter(meter_device);
+  devices::ScpiPowerMeter meter(meter_device);
   const cv::Rect rect(120, 120, 16, 16);
   const double bias = camera_->sensor().options().bias_adu;
   const cv::Mat1w a = Snap(200000);

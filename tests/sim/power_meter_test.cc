@@ -1,15 +1,15 @@
 // The simulated source monitor under the driver's own USBTMC framing and SCPI meter
-// (drivers/monitor): the bytes on the bulk endpoints, the SCPI command set and error queue, a
-// timed-out read recovered by the class abort request, a disconnect and reopen from the fault
-// plan, and readings that follow the lamp.
+// (devices/usbtmc.h, devices/scpi_power_meter.h): the bytes on the bulk endpoints, the SCPI command
+// set and error queue, a timed-out read recovered by the class abort request, a disconnect and
+// reopen from the fault plan, and readings that follow the lamp.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <string>
 
-#include "drivers/monitor/scpi_power_meter.h"
-#include "drivers/monitor/usbtmc.h"
-#include "drivers/monitor/usbtmc_socket.h"
+#include "backends/usbtmc_socket.h"
+#include "devices/scpi_power_meter.h"
+#include "devices/usbtmc.h"
 #include "sim/clock.h"
 #include "sim/monitor/monitor_server.h"
 #include "sim/monitor/power_meter.h"
@@ -17,8 +17,8 @@
 namespace gonio::sim {
 namespace {
 
-using drivers::ScpiPowerMeter;
-using drivers::UsbTmc;
+using devices::ScpiPowerMeter;
+using devices::UsbTmc;
 
 class PowerMeter : public ::testing::Test {
  protected:
@@ -30,7 +30,7 @@ class PowerMeter : public ::testing::Test {
 TEST_F(PowerMeter, BulkOutMessageIsTheUsbTmcHeaderAndPaddedPayload) {
   // The framing's bytes, checked against USBTMC 1.0 table 3 by hand: MsgID 1, bTag 1, ~bTag,
   // reserved, TransferSize 6 little-endian, EOM, 3 reserved; "*IDN?\n" padded to 8 bytes.
-  const auto h = drivers::UsbTmcHeader(1, 1, 6, true);
+  const auto h = devices::UsbTmcHeader(1, 1, 6, true);
   const std::array<std::uint8_t, 12> expected{1, 1, 0xFE, 0, 6, 0, 0, 0, 1, 0, 0, 0};
   EXPECT_EQ(h, expected);
   SimulatedPowerMeter dev(clock, lamp);
@@ -124,6 +124,41 @@ TEST_F(PowerMeter, DisconnectFromTheFaultPlanAndReopenAfterItReturns) {
   EXPECT_NEAR(*again, lamp.PowerW(6), 1e-3 * lamp.PowerW(6));
 }
 
+// The device side on its own, with bytes written here from USBTMC 1.0 (tables 3, 4 and 9), not
+// by either side's framing code: a query, and its answer split by the host's TransferSize.
+TEST_F(PowerMeter, AnswersHandBuiltTransfersAndSplitsAResponseAtTheRequestedSize) {
+  SimulatedPowerMeter dev(clock, lamp);
+  // DEV_DEP_MSG_OUT, bTag 7, TransferSize 6, EOM; "*IDN?\n" padded to 8.
+  const std::uint8_t query[20] = {1, 7, 0xF8, 0,   6,   0,   0,   0,    1, 0,
+                                  0, 0, '*',  'I', 'D', 'N', '?', '\n', 0, 0};
+  ASSERT_TRUE(dev.BulkOut(query, sizeof query, 100).ok());
+  // REQUEST_DEV_DEP_MSG_IN, bTag 8, at most 8 bytes.
+  const std::uint8_t request8[12] = {2, 8, 0xF7, 0, 8, 0, 0, 0, 0, 0, 0, 0};
+  ASSERT_TRUE(dev.BulkOut(request8, sizeof request8, 100).ok());
+  std::uint8_t in[64] = {};
+  auto n = dev.BulkIn(in, sizeof in, 100);
+  ASSERT_TRUE(n.ok()) << n.error().message;
+  ASSERT_EQ(*n, 12u + 8u);  // header and 8 bytes, already a multiple of 4
+  EXPECT_EQ(in[0], 2);      // DEV_DEP_MSG_IN
+  EXPECT_EQ(in[1], 8);
+  EXPECT_EQ(in[2], 0xF7);
+  EXPECT_EQ(in[4] | in[5] << 8 | in[6] << 16 | in[7] << 24, 8);
+  EXPECT_EQ(in[8] & 1, 0);  // not the end of the message
+  std::string answer(reinterpret_cast<const char*>(in + 12), 8);
+  // The rest, in one transfer with EOM set and padded to 4 bytes.
+  const std::uint8_t request_all[12] = {2, 9, 0xF6, 0, 64, 0, 0, 0, 0, 0, 0, 0};
+  ASSERT_TRUE(dev.BulkOut(request_all, sizeof request_all, 100).ok());
+  n = dev.BulkIn(in, sizeof in, 100);
+  ASSERT_TRUE(n.ok()) << n.error().message;
+  const std::uint32_t size = in[4] | in[5] << 8 | in[6] << 16 | in[7] << 24;
+  EXPECT_EQ(in[1], 9);
+  EXPECT_EQ(in[8] & 1, 1);
+  EXPECT_EQ(*n % 4, 0u);
+  ASSERT_GE(*n, 12u + size);
+  answer.append(reinterpret_cast<const char*>(in + 12), size);
+  EXPECT_EQ(answer, "gonio-sim,PM100USB (simulated),SIM-PM-1,1.0.0\n");
+}
+
 TEST_F(PowerMeter, MalformedHeaderStallsTheEndpoint) {
   SimulatedPowerMeter dev(clock, lamp);
   const std::uint8_t bad[12] = {1, 5, 5, 0, 0, 0, 0, 0, 1, 0, 0, 0};  // ~bTag wrong
@@ -141,7 +176,7 @@ TEST_F(PowerMeter, OverTheLoopbackSocketTheDriverSeesTheSameMeter) {
   SimulatedPowerMeter dev(clock, lamp, {}, 1, &plan);
   auto server = MonitorSocketServer::Start(dev);
   ASSERT_TRUE(server.ok()) << server.error().message;
-  auto transport = drivers::UsbTmcSocketTransport::Connect("127.0.0.1", (*server)->port());
+  auto transport = backends::UsbTmcSocketTransport::Connect("127.0.0.1", (*server)->port());
   ASSERT_TRUE(transport.ok()) << transport.error().message;
   ScpiPowerMeter meter(**transport);
   auto idn = meter.Identity();
@@ -153,7 +188,7 @@ TEST_F(PowerMeter, OverTheLoopbackSocketTheDriverSeesTheSameMeter) {
   EXPECT_EQ(r.error().code, ErrorCode::kNotConnected);
   clock.Advance(2);
   EXPECT_TRUE(meter.PowerW().ok());
-  EXPECT_FALSE(drivers::UsbTmcSocketTransport::Connect("localhost", 1).ok());  // numeric only
+  EXPECT_FALSE(backends::UsbTmcSocketTransport::Connect("localhost", 1).ok());  // numeric only
 }
 
 }  // namespace

@@ -1,0 +1,421 @@
+#include "backends/aravis_camera.h"
+
+#include <arpa/inet.h>
+#include <arv.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <thread>
+
+namespace gonio::backends {
+
+namespace {
+
+// Turns a GError into an Error (and frees it); nullptr: success.
+Status Check(GError* e, const std::string& what, ErrorCode code = ErrorCode::kIo) {
+  if (e == nullptr) return OkStatus();
+  Error err{code, what + ": " + e->message};
+  g_error_free(e);
+  return err;
+}
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+Result<std::unique_ptr<AravisCamera>> AravisCamera::Open(CameraSettings settings) {
+  const std::string& a = settings.address;
+  if (a.rfind("usb3:", 0) != 0) {
+    in_addr ip{};
+    if (inet_pton(AF_INET, a.c_str(), &ip) != 1)
+      return InvalidArgument("camera address '" + a +
+                             "' must be a numeric IPv4 address (GigE Vision, opened without "
+                             "discovery) or usb3:<device id>");
+  }
+  if (settings.pixel_format != "Mono16" && settings.pixel_format != "Mono12")
+    return InvalidArgument("camera pixel_format '" + settings.pixel_format +
+                           "' is not Mono16 or Mono12");
+  if (settings.binning < 1 || settings.buffers < 2 || settings.retries < 0)
+    return InvalidArgument("camera binning must be >= 1, buffers >= 2, retries >= 0");
+  std::unique_ptr<AravisCamera> c(new AravisCamera());
+  c->s_ = std::move(settings);
+  // A controller that died without releasing the camera (a killed process) keeps its control
+  // privilege until the camera's heartbeat timeout (about 3 s for GigE Vision): until then
+  // writes time out. Keep trying for open_timeout_s.
+  const auto deadline =
+      std::chrono::steady_clock::now() + std::chrono::duration<double>(c->s_.open_timeout_s);
+  for (;;) {
+    Status s = c->Connect();
+    if (s.ok()) return c;
+    c->Disconnect();
+    if (std::chrono::steady_clock::now() > deadline) return s.error();
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
+}
+
+AravisCamera::~AravisCamera() { Disconnect(); }
+
+void AravisCamera::Disconnect() {
+  if (camera_ != nullptr) {
+    GError* e = nullptr;
+    arv_camera_stop_acquisition(camera_, &e);
+    if (e) g_error_free(e);
+  }
+  if (early_ != nullptr) g_object_unref(early_);  // popped, so no longer the stream's
+  early_ = nullptr;
+  exposed_ = false;
+  stream_owner_.reset();  // frames still held unref their buffers themselves
+  stream_ = nullptr;
+  if (camera_ != nullptr) g_object_unref(camera_);
+  camera_ = nullptr;
+}
+
+Status AravisCamera::Connect() {
+  const std::string id = s_.address.rfind("usb3:", 0) == 0 ? s_.address.substr(5) : s_.address;
+  GError* e = nullptr;
+  camera_ = arv_camera_new(id.c_str(), &e);
+  if (Status s = Check(e, "camera " + s_.address + " does not answer", ErrorCode::kNotConnected);
+      !s.ok())
+    return s;
+  const char* vendor = arv_camera_get_vendor_name(camera_, nullptr);
+  const char* model = arv_camera_get_model_name(camera_, nullptr);
+  const char* serial = arv_camera_get_device_serial_number(camera_, nullptr);
+  identity_ = std::string(vendor ? vendor : "?") + " " + (model ? model : "?") + " " +
+              (serial ? serial : "?");
+  if (Status s = Configure(); !s.ok()) return s;
+  stream_ = arv_camera_create_stream(camera_, nullptr, nullptr, &e);
+  if (Status s = Check(e, "camera " + s_.address + ": stream"); !s.ok()) return s;
+  stream_owner_ = std::shared_ptr<_ArvStream>(stream_, [](_ArvStream* st) { g_object_unref(st); });
+  const guint payload = arv_camera_get_payload(camera_, &e);
+  if (Status s = Check(e, "camera payload size"); !s.ok()) return s;
+  for (int k = 0; k < s_.buffers; ++k)
+    arv_stream_push_buffer(stream_, arv_buffer_new(payload, nullptr));
+  arv_camera_start_acquisition(camera_, &e);
+  return Check(e, "camera " + s_.address + ": AcquisitionStart");
+}
+
+Status AravisCamera::Reopen() {
+  Disconnect();
+  if (Status s = Connect(); !s.ok())
+    return Error{ErrorCode::kNotConnected,
+                 "camera " + s_.address + " lost and not reopened: " + s.error().message};
+  ++reopens_;
+  return SetExposure(exposure_s_);
+}
+
+Status AravisCamera::Configure() {
+  GError* e = nullptr;
+  ArvDevice* dev = arv_camera_get_device(camera_);
+  arv_camera_set_pixel_format_from_string(camera_, s_.pixel_format.c_str(), &e);
+  if (Status s = Check(e, "PixelFormat " + s_.pixel_format); !s.ok()) return s;
+  if (s_.binning > 1 || arv_camera_is_binning_available(camera_, nullptr)) {
+    arv_camera_set_binning(camera_, s_.binning, s_.binning, &e);
+    if (Status s = Check(e, "binning " + std::to_string(s_.binning)); !s.ok()) return s;
+  }
+  gint sw = 0, sh = 0;
+  arv_camera_get_sensor_size(camera_, &sw, &sh, &e);
+  if (Status s = Check(e, "SensorWidth/SensorHeight"); !s.ok()) return s;
+  const int w = s_.roi_width > 0 ? s_.roi_width : sw / s_.binning;
+  const int h = s_.roi_height > 0 ? s_.roi_height : sh / s_.binning;
+  arv_camera_set_region(camera_, s_.roi_x, s_.roi_y, w, h, &e);
+  if (Status s = Check(e, "region " + std::to_string(w) + "x" + std::to_string(h)); !s.ok())
+    return s;
+  arv_camera_set_gain(camera_, s_.gain_db, &e);
+  if (Status s = Check(e, "Gain"); !s.ok()) return s;
+  if (s_.black_level >= 0) {
+    arv_device_set_integer_feature_value(dev, "BlackLevel", s_.black_level, &e);
+    if (Status s = Check(e, "BlackLevel"); !s.ok()) return s;
+  }
+  arv_camera_set_acquisition_mode(camera_, ARV_ACQUISITION_MODE_CONTINUOUS, &e);
+  if (Status s = Check(e, "AcquisitionMode"); !s.ok()) return s;
+  arv_device_set_string_feature_value(dev, "TriggerSelector", "FrameStart", &e);
+  if (e) g_clear_error(&e);  // optional on cameras with one trigger
+  arv_device_set_string_feature_value(dev, "TriggerMode", "On", &e);
+  if (Status s = Check(e, "TriggerMode On"); !s.ok()) return s;
+  arv_device_set_string_feature_value(dev, "TriggerSource", "Software", &e);
+  if (Status s = Check(e, "TriggerSource Software"); !s.ok()) return s;
+  arv_camera_set_exposure_time(camera_, exposure_s_ * 1e6, &e);
+  if (Status s = Check(e, "ExposureTime"); !s.ok()) return s;
+  // The exposure's end, if the camera reports it: the selector is set once; a camera without the
+  // features (or the selector's entry) reads out every frame before the stages move.
+  const VendorFeatures& f = s_.features;
+  reports_end_ = !f.status.empty() && arv_device_get_feature(dev, f.status.c_str()) != nullptr;
+  if (reports_end_ && !f.status_selector.empty()) {
+    arv_device_set_string_feature_value(dev, f.status_selector.c_str(),
+                                        f.status_selector_value.c_str(), &e);
+    if (e != nullptr) {
+      g_clear_error(&e);
+      reports_end_ = false;
+    }
+  }
+  return OkStatus();
+}
+
+Status AravisCamera::SetExposure(double seconds) {
+  if (!(seconds > 0)) return InvalidArgument("exposure must be > 0 s");
+  GError* e = nullptr;
+  arv_camera_set_exposure_time(camera_, seconds * 1e6, &e);
+  if (Status s = Check(e, "ExposureTime " + std::to_string(seconds) + " s"); !s.ok()) return s;
+  exposure_s_ = arv_camera_get_exposure_time(camera_, nullptr) * 1e-6;
+  return OkStatus();
+}
+
+Result<double> AravisCamera::Exposure() {
+  GError* e = nullptr;
+  const double us = arv_camera_get_exposure_time(camera_, &e);
+  if (Status s = Check(e, "ExposureTime"); !s.ok()) return s.error();
+  return us * 1e-6;
+}
+
+Result<cv::Size> AravisCamera::ImageSize() {
+  GError* e = nullptr;
+  gint x = 0, y = 0, w = 0, h = 0;
+  arv_camera_get_region(camera_, &x, &y, &w, &h, &e);
+  if (Status s = Check(e, "Width/Height"); !s.ok()) return s.error();
+  return cv::Size(w, h);
+}
+
+_ArvBuffer* AravisCamera::PopFrame(double wait_s) {
+  // A buffer handed back still CLEARED never received a packet: it holds no frame, not even a
+  // failed one (Aravis occasionally returns one at once on a loaded machine). It goes back to the
+  // pool and the wait for this trigger's frame goes on, so that frames and triggers stay paired.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_s);
+  while (true) {
+    const double left =
+        std::chrono::duration<double>(deadline - std::chrono::steady_clock::now()).count();
+    if (left <= 0) return nullptr;
+    ArvBuffer* b = arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(left * 1e6));
+    if (b == nullptr || arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) return b;
+    arv_stream_push_buffer(stream_, b);
+  }
+}
+
+Status AravisCamera::Trigger() {
+  // Stale frames (from before this call) go back to the pool unread.
+  if (early_ != nullptr) arv_stream_push_buffer(stream_, early_);
+  early_ = nullptr;
+  exposed_ = false;
+  while (ArvBuffer* old = arv_stream_try_pop_buffer(stream_)) arv_stream_push_buffer(stream_, old);
+  gint free_buffers = 0, filled = 0;
+  arv_stream_get_n_buffers(stream_, &free_buffers, &filled);
+  if (free_buffers == 0)
+    return Error{ErrorCode::kBusy, "camera " + s_.address + ": all " + std::to_string(s_.buffers) +
+                                       " frame buffers are held by earlier Frames; release one"};
+  GError* e = nullptr;
+  arv_camera_software_trigger(camera_, &e);
+  return Check(e, "TriggerSoftware failed");
+}
+
+Result<Frame> AravisCamera::Wrap(ArvBuffer* b, int attempt) {
+  if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_SUCCESS) {
+    const int status = static_cast<int>(arv_buffer_get_status(b));
+    arv_stream_push_buffer(stream_, b);
+    return Error{ErrorCode::kDeviceFault,
+                 "frame arrived incomplete (buffer status " + std::to_string(status) + ")"};
+  }
+  std::size_t size = 0;
+  const void* data = arv_buffer_get_data(b, &size);
+  const int w = arv_buffer_get_image_width(b), h = arv_buffer_get_image_height(b);
+  if (data == nullptr || size < static_cast<std::size_t>(w) * h * 2) {
+    arv_stream_push_buffer(stream_, b);
+    return Error{ErrorCode::kProtocol, "camera frame smaller than its image"};
+  }
+  Frame f;
+  f.exposure_s = exposure_s_;
+  f.timestamp_ns = arv_buffer_get_timestamp(b);
+  f.attempts = attempt;
+  // The view shares the buffer; the last Frame copy gives it back to the pool (or frees it if
+  // the stream has gone).
+  std::weak_ptr<_ArvStream> owner = stream_owner_;
+  f.hold = std::shared_ptr<void>(b, [owner](void* p) {
+    auto* buf = static_cast<ArvBuffer*>(p);
+    if (auto st = owner.lock()) {
+      arv_stream_push_buffer(st.get(), buf);
+    } else {
+      g_object_unref(buf);
+    }
+  });
+  f.image = cv::Mat1w(h, w, static_cast<std::uint16_t*>(const_cast<void*>(data)));
+  return f;
+}
+
+Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_problem) {
+  for (int attempt = first_attempt; attempt <= first_attempt + s_.retries; ++attempt) {
+    if (Status t = Trigger(); !t.ok()) {
+      if (t.error().code == ErrorCode::kBusy) return t.error();
+      // The camera no longer answers: reopen it once per attempt, then trigger again.
+      *last_problem = t.error().message;
+      if (Status s = Reopen(); !s.ok()) return s.error();
+      continue;
+    }
+    const double wait_s = exposure_s_ + s_.frame_timeout_s;
+    ArvBuffer* b = PopFrame(wait_s);
+    if (b == nullptr) {
+      *last_problem = "no frame within " + std::to_string(wait_s) + " s";
+      continue;
+    }
+    auto f = Wrap(b, attempt);
+    if (f.ok() || f.error().code != ErrorCode::kDeviceFault) return f;
+    *last_problem = f.error().message;
+  }
+  return Error{ErrorCode::kTimeout, *last_problem};
+}
+
+Status AravisCamera::Expose() {
+  if (!reports_end_)
+    return Error{ErrorCode::kFailedPrecondition,
+                 "camera " + s_.address + " does not report the end of an exposure (no " +
+                     s_.features.status + " feature): use Snap"};
+  // Nothing has moved yet, so a trigger the camera did not take is tried once more after a
+  // reopen.
+  if (Status t = Trigger(); !t.ok()) {
+    if (t.error().code == ErrorCode::kBusy) return t;
+    if (Status s = Reopen(); !s.ok()) return s;
+    if (Status again = Trigger(); !again.ok()) return again;
+  }
+  exposed_ = true;
+  ArvDevice* dev = arv_camera_get_device(camera_);
+  const auto t0 = std::chrono::steady_clock::now();
+  const double limit_s = exposure_s_ + s_.frame_timeout_s;
+  // The camera may not have begun when the status is first read: the end is "active, then not".
+  // An exposure short enough to begin and end between two reads shows as its frame arriving.
+  bool seen_active = false;
+  for (;;) {
+    GError* e = nullptr;
+    const bool active = arv_device_get_boolean_feature_value(dev, s_.features.status.c_str(), &e);
+    if (Status s = Check(e, "camera " + s_.address + ": " + s_.features.status); !s.ok()) return s;
+    if (active) {
+      seen_active = true;
+    } else if (seen_active) {
+      return OkStatus();
+    }
+    if (ArvBuffer* b = arv_stream_try_pop_buffer(stream_)) {
+      if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) {
+        early_ = b;
+        return OkStatus();
+      }
+      arv_stream_push_buffer(stream_, b);  // the CLEARED quirk (PopFrame): not a frame
+    }
+    if (Seconds(t0) > limit_s)
+      return Error{ErrorCode::kTimeout, "camera " + s_.address + ": the exposure of " +
+                                            std::to_string(exposure_s_) + " s did not end within " +
+                                            std::to_string(limit_s) + " s"};
+    std::this_thread::sleep_for(std::chrono::duration<double>(s_.status_poll_s));
+  }
+}
+
+Result<Frame> AravisCamera::Retrieve() {
+  if (!exposed_)
+    return Error{ErrorCode::kFailedPrecondition,
+                 "camera " + s_.address + ": Retrieve without Expose"};
+  exposed_ = false;
+  ArvBuffer* b = early_ != nullptr ? early_ : PopFrame(s_.frame_timeout_s);
+  early_ = nullptr;
+  if (b == nullptr)
+    return Error{ErrorCode::kTimeout, "camera " + s_.address + ": no frame within " +
+                                          std::to_string(s_.frame_timeout_s) +
+                                          " s of the exposure's end"};
+  auto f = Wrap(b, 1);
+  if (!f.ok()) return Error{f.error().code, "camera " + s_.address + ": " + f.error().message};
+  return f;
+}
+
+Result<Frame> AravisCamera::Snap() {
+  std::string problem = "no frame";
+  auto f = SnapOnce(1, &problem);
+  // Every attempt timed out without a frame: a camera that was power-cycled answers its
+  // registers but has forgotten its stream. Reopen it once and try again.
+  const bool silent =
+      !f.ok() && f.error().code == ErrorCode::kTimeout && problem.rfind("no frame", 0) == 0;
+  if (silent) {
+    if (Status s = Reopen(); !s.ok()) return s.error();
+    f = SnapOnce(s_.retries + 2, &problem);
+  }
+  if (f.ok() || f.error().code != ErrorCode::kTimeout) return f;
+  const bool incomplete = problem.find("incomplete") != std::string::npos;
+  return Error{incomplete ? ErrorCode::kDeviceFault : ErrorCode::kTimeout,
+               "camera " + s_.address + ": " + problem + " (after " + std::to_string(s_.retries) +
+                   " retries" + (silent ? " and a reopen)" : ")")};
+}
+
+Result<double> AravisCamera::TemperatureC() {
+  ArvDevice* dev = arv_camera_get_device(camera_);
+  GError* e = nullptr;
+  const VendorFeatures& c = s_.features;
+  if (!c.temperature_selector.empty()) {
+    arv_device_set_string_feature_value(dev, c.temperature_selector.c_str(),
+                                        c.temperature_selector_value.c_str(), &e);
+    if (Status s = Check(e, c.temperature_selector); !s.ok()) return s.error();
+  }
+  const double t = arv_device_get_float_feature_value(dev, c.temperature.c_str(), &e);
+  if (Status s = Check(e, c.temperature); !s.ok()) return s.error();
+  return t;
+}
+
+Status AravisCamera::SetShutter(bool open) {
+  const VendorFeatures& c = s_.features;
+  if (c.shutter.empty()) return InvalidArgument("this camera's config names no shutter");
+  GError* e = nullptr;
+  arv_device_set_string_feature_value(arv_camera_get_device(camera_), c.shutter.c_str(),
+                                      (open ? c.shutter_open : c.shutter_closed).c_str(), &e);
+  return Check(e, c.shutter);
+}
+
+Status AravisCamera::SetCooling(bool on, double setpoint_c) {
+  const VendorFeatures& c = s_.features;
+  if (c.control_mode.empty()) return InvalidArgument("this camera's config names no cooler");
+  ArvDevice* dev = arv_camera_get_device(camera_);
+  GError* e = nullptr;
+  if (on) {
+    arv_device_set_float_feature_value(dev, c.setpoint.c_str(), setpoint_c, &e);
+    if (Status s = Check(e, c.setpoint); !s.ok()) return s;
+    if (!c.setpoint_activate.empty()) {
+      arv_device_execute_command(dev, c.setpoint_activate.c_str(), &e);
+      if (Status s = Check(e, c.setpoint_activate); !s.ok()) return s;
+    }
+  }
+  arv_device_set_string_feature_value(dev, c.control_mode.c_str(),
+                                      (on ? c.control_on : c.control_off).c_str(), &e);
+  return Check(e, c.control_mode);
+}
+
+Status AravisCamera::CoolAndWait(const TemperatureWait& w) {
+  auto t_start = TemperatureC();
+  if (!t_start.ok()) return t_start.error();
+  const auto t0 = std::chrono::steady_clock::now();
+  double within_since = -1, last = *t_start;
+  for (;;) {
+    if (w.cancel != nullptr && w.cancel->load())
+      return Error{ErrorCode::kAborted, "cooling cancelled at " + std::to_string(last) + " C"};
+    const double elapsed = Seconds(t0);
+    // A ramp moves the setpoint from where the sensor started, at the rate asked.
+    double sp = w.setpoint_c;
+    if (w.ramp_c_per_min > 0) {
+      const double step = w.ramp_c_per_min * elapsed / 60;
+      sp = *t_start > w.setpoint_c ? std::max(w.setpoint_c, *t_start - step)
+                                   : std::min(w.setpoint_c, *t_start + step);
+    }
+    if (Status s = SetCooling(true, sp); !s.ok()) return s;
+    auto t = TemperatureC();
+    if (!t.ok()) return t.error();
+    last = *t;
+    if (std::abs(last - w.setpoint_c) <= w.tolerance_c) {
+      if (within_since < 0) within_since = elapsed;
+      if (elapsed - within_since >= w.hold_s) return OkStatus();
+    } else {
+      within_since = -1;
+    }
+    if (elapsed > w.timeout_s)
+      return Error{ErrorCode::kTimeout,
+                   "sensor at " + std::to_string(last) + " C after " + std::to_string(elapsed) +
+                       " s; setpoint " + std::to_string(w.setpoint_c) + " +- " +
+                       std::to_string(w.tolerance_c) + " C not held for " +
+                       std::to_string(w.hold_s) + " s (is the cooler working?)"};
+    std::this_thread::sleep_for(std::chrono::duration<double>(w.poll_s));
+  }
+}
+
+}  // namespace gonio::backends

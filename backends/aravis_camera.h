@@ -1,0 +1,77 @@
+// The camera over GenICam with Aravis 0.8: opened by numeric IP (GigE Vision) or USB3 Vision id,
+// never by discovery (docs/design.md network rules); TriggerMode On with TriggerSoftware, a
+// pool of stream buffers, failed or incomplete buffers re-triggered a bounded number of times, and
+// a reopen when the camera has dropped off the network. Expose() watches SFNC's
+// AcquisitionStatus (ExposureActive) when the camera has it, so readout can overlap motion. An
+// exposure that begins and ends between two reads (under about a millisecond) looks the same as
+// one not yet begun: Expose() then returns when its frame arrives, with nothing overlapped. An
+// SFNC counter of exposure ends would remove that case; it is not used yet.
+#pragma once
+
+#include <memory>
+
+#include "devices/camera.h"
+
+struct _ArvCamera;
+struct _ArvStream;
+struct _ArvBuffer;
+
+namespace gonio::backends {
+
+using devices::Camera;
+using devices::CameraSettings;
+using devices::Frame;
+using devices::TemperatureWait;
+using devices::VendorFeatures;
+
+class AravisCamera final : public Camera {
+ public:
+  static Result<std::unique_ptr<AravisCamera>> Open(CameraSettings settings);
+  ~AravisCamera() override;
+
+  std::string Identity() const override { return identity_; }
+  Status SetExposure(double seconds) override;
+  Result<double> Exposure() override;
+  Result<cv::Size> ImageSize() override;
+  Result<Frame> Snap() override;
+  bool ReportsExposureEnd() const override { return reports_end_; }
+  Status Expose() override;
+  Result<Frame> Retrieve() override;
+  Result<double> TemperatureC() override;
+  Status SetShutter(bool open) override;
+  Status SetCooling(bool on, double setpoint_c) override;
+  Status CoolAndWait(const TemperatureWait& w) override;
+
+  int reopens() const { return reopens_; }
+
+ private:
+  AravisCamera() = default;
+  Status Connect();  // camera, settings, stream
+  void Disconnect();
+  Status Reopen();  // Disconnect, Connect, restore the exposure; counts reopens_
+  Status Configure();
+  // This trigger's frame (any status but CLEARED) within wait_s, or null.
+  _ArvBuffer* PopFrame(double wait_s);
+  // Drains stale frames and triggers one. kBusy: every buffer is held by earlier Frames; kIo: the
+  // trigger was not accepted (the camera may have gone).
+  Status Trigger();
+  // A popped buffer as a Frame; on error the buffer goes back to the pool. kDeviceFault: it
+  // arrived incomplete; kProtocol: smaller than its image.
+  Result<Frame> Wrap(_ArvBuffer* b, int attempt);
+  // One trigger and its retries; kTimeout carries only the last problem (in *last_problem).
+  Result<Frame> SnapOnce(int first_attempt, std::string* last_problem);
+
+  CameraSettings s_;
+  std::string identity_;
+  _ArvCamera* camera_ = nullptr;
+  _ArvStream* stream_ = nullptr;
+  double exposure_s_ = 0.1;
+  int reopens_ = 0;
+  bool reports_end_ = false;     // the status feature exists (Connect)
+  bool exposed_ = false;         // Expose() has triggered a frame that Retrieve() has not taken
+  _ArvBuffer* early_ = nullptr;  // that frame, when it arrived before the exposure's end was seen
+  // Buffers handed out in Frames return to this stream; it outlives them through this token.
+  std::shared_ptr<_ArvStream> stream_owner_;
+};
+
+}  // namespace gonio::backends

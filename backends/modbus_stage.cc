@@ -1,0 +1,356 @@
+#include "backends/modbus_stage.h"
+
+#include <modbus/modbus.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <thread>
+
+namespace gonio::backends {
+
+namespace {
+
+modbus_t* Ctx(void* p) { return static_cast<modbus_t*>(p); }
+
+std::string Hex(std::uint32_t v) {
+  char b[16];
+  std::snprintf(b, sizeof b, "0x%02X", v);
+  return b;
+}
+
+bool Transient(int e) { return e == ETIMEDOUT || e == EMBBADCRC || e == EMBBADDATA; }
+bool ConnectionLost(int e) {
+  return e == ECONNRESET || e == EPIPE || e == EBADF || e == ENOTCONN || e == ECONNREFUSED ||
+         e == EIO;
+}
+
+std::int32_t ToSteps(const AxisSettings& a, double deg) {
+  return static_cast<std::int32_t>(std::lround((deg - a.degrees_at_zero) * a.steps_per_degree));
+}
+double ToDeg(const AxisSettings& a, std::int32_t steps) {
+  return a.degrees_at_zero + steps / a.steps_per_degree;
+}
+
+}  // namespace
+
+Result<std::unique_ptr<ModbusStageController>> ModbusStageController::Open(
+    ModbusLink link, std::vector<AxisSettings> axes, StageRegisterProfile profile) {
+  if (axes.empty()) return InvalidArgument("stage controller: no axes configured");
+  for (const AxisSettings& a : axes) {
+    if (!(a.steps_per_degree > 0) || !(a.speed_deg_s > 0) || !(a.acceleration_deg_s2 > 0) ||
+        !(a.min_deg < a.max_deg) || a.backlash_overshoot_deg < 0 || !(a.tolerance_deg > 0))
+      return InvalidArgument("axis '" + a.name +
+                             "': steps_per_degree, speed, acceleration and tolerance must be > 0, "
+                             "min_deg < max_deg, overshoot >= 0");
+  }
+  std::unique_ptr<ModbusStageController> c(new ModbusStageController());
+  c->link_ = std::move(link);
+  c->axes_ = std::move(axes);
+  c->p_ = profile;
+  const ModbusLink& l = c->link_;
+  if (l.kind == "tcp") {
+    c->ctx_ = modbus_new_tcp(l.host.c_str(), l.port);
+  } else if (l.kind == "rtu") {
+    c->ctx_ = modbus_new_rtu(l.device.c_str(), l.baud, l.parity, l.data_bits, l.stop_bits);
+  } else {
+    return InvalidArgument("stage link kind '" + l.kind + "' is not tcp or rtu");
+  }
+  if (c->ctx_ == nullptr)
+    return InvalidArgument("stage link: " + std::string(modbus_strerror(errno)));
+  const double t = l.response_timeout_s;
+  modbus_set_response_timeout(Ctx(c->ctx_), static_cast<std::uint32_t>(t),
+                              static_cast<std::uint32_t>((t - std::floor(t)) * 1e6));
+  if (Status s = c->Connect(); !s.ok()) return s.error();
+  for (const AxisSettings& a : c->axes_) {
+    auto st = c->ReadStatus(a.name);
+    if (!st.ok())
+      return Error{st.error().code, "axis '" + a.name + "' (unit " + std::to_string(a.slave_id) +
+                                        ") does not answer: " + st.error().message};
+  }
+  return c;
+}
+
+ModbusStageController::~ModbusStageController() {
+  if (ctx_ != nullptr) {
+    modbus_close(Ctx(ctx_));
+    modbus_free(Ctx(ctx_));
+  }
+}
+
+Status ModbusStageController::Connect() {
+  if (modbus_connect(Ctx(ctx_)) != 0) {
+    const std::string where =
+        link_.kind == "tcp" ? link_.host + ":" + std::to_string(link_.port) : link_.device;
+    return Error{ErrorCode::kNotConnected,
+                 "stage controller at " + where + ": " + modbus_strerror(errno)};
+  }
+  return OkStatus();
+}
+
+Result<const AxisSettings*> ModbusStageController::Find(const std::string& name) const {
+  for (const AxisSettings& a : axes_)
+    if (a.name == name) return &a;
+  return InvalidArgument("no axis named '" + name + "' in the stage configuration");
+}
+
+// One request under the retry policy. `op` performs it and returns libmodbus's result.
+template <typename Op>
+static Status WithRetries(void* ctx, const ModbusLink& link, const std::string& what, Op op,
+                          int* retried, int* reconnects) {
+  int last = 0;
+  for (int attempt = 0; attempt <= link.retries; ++attempt) {
+    if (op() != -1) return OkStatus();
+    last = errno;
+    if (last > MODBUS_ENOBASE && last < EMBXGTAR + 1 && !Transient(last))
+      return Error{ErrorCode::kProtocol, what + ": Modbus exception: " + modbus_strerror(last)};
+    if (attempt == link.retries) break;
+    ++*retried;
+    if (ConnectionLost(last)) {
+      modbus_close(Ctx(ctx));
+      std::this_thread::sleep_for(std::chrono::milliseconds(50 << attempt));
+      if (modbus_connect(Ctx(ctx)) == 0) ++*reconnects;
+    } else {
+      modbus_flush(Ctx(ctx));  // a late or corrupt reply must not answer the next request
+    }
+  }
+  const ErrorCode code = last == ETIMEDOUT      ? ErrorCode::kTimeout
+                         : ConnectionLost(last) ? ErrorCode::kNotConnected
+                                                : ErrorCode::kIo;
+  return Error{code, what + ": " + modbus_strerror(last) + " (after " +
+                         std::to_string(link.retries) + " retries)"};
+}
+
+Status ModbusStageController::Read(const AxisSettings& a, std::uint16_t address, int count,
+                                   std::uint16_t* out, const std::string& what) {
+  std::lock_guard lock(mu_);
+  modbus_set_slave(Ctx(ctx_), a.slave_id);
+  return WithRetries(
+      ctx_, link_, "axis '" + a.name + "': reading " + what,
+      [&] { return modbus_read_registers(Ctx(ctx_), address, count, out); }, &retried_,
+      &reconnects_);
+}
+
+Status ModbusStageController::Write(const AxisSettings& a, std::uint16_t address, int count,
+                                    const std::uint16_t* values, const std::string& what) {
+  std::lock_guard lock(mu_);
+  modbus_set_slave(Ctx(ctx_), a.slave_id);
+  return WithRetries(
+      ctx_, link_, "axis '" + a.name + "': writing " + what,
+      [&] { return modbus_write_registers(Ctx(ctx_), address, count, values); }, &retried_,
+      &reconnects_);
+}
+
+Status ModbusStageController::Write32(const AxisSettings& a, std::uint16_t address, std::uint32_t v,
+                                      const std::string& what) {
+  const std::uint16_t w[2] = {static_cast<std::uint16_t>(v >> 16),
+                              static_cast<std::uint16_t>(v & 0xFFFF)};
+  return Write(a, address, 2, w, what);
+}
+
+std::string ModbusStageController::AlarmText(const AxisSettings& a, std::uint32_t code) const {
+  const char* meaning = "see the controller's alarm list";
+  switch (code) {
+    case 0x10:
+      meaning = "excessive position deviation: the stage stalled or is blocked";
+      break;
+    case 0x30:
+      meaning = "overload";
+      break;
+    case 0x66:
+      meaning = "hardware overtravel: a limit switch was reached";
+      break;
+    case 0x67:
+      meaning = "software overtravel: the target is outside the controller's limits";
+      break;
+    case 0x70:
+      meaning = "operation data error";
+      break;
+    default:
+      break;
+  }
+  return "axis '" + a.name + "' alarm " + Hex(code) + " (" + meaning +
+         "); check the stage, then reset the alarm";
+}
+
+Result<AxisStatus> ModbusStageController::ReadStatus(const std::string& name) {
+  auto found = Find(name);
+  if (!found.ok()) return found.error();
+  const AxisSettings& a = **found;
+  std::uint16_t st[4], pos[2];  // output status and present alarm are adjacent in the profile
+  AxisStatus s;
+  if (p_.present_alarm == p_.output_status + 2) {
+    if (Status r = Read(a, p_.output_status, 4, st, "status"); !r.ok()) return r.error();
+  } else {
+    if (Status r = Read(a, p_.output_status, 2, st, "status"); !r.ok()) return r.error();
+    if (Status r = Read(a, p_.present_alarm, 2, st + 2, "alarm"); !r.ok()) return r.error();
+  }
+  if (Status r = Read(a, p_.command_position, 2, pos, "position"); !r.ok()) return r.error();
+  const std::uint32_t out = (std::uint32_t(st[0]) << 16) | st[1];
+  s.alarm = (std::uint32_t(st[2]) << 16) | st[3];
+  s.ready = out & p_.out_ready;
+  s.moving = out & p_.out_move;
+  s.in_position = out & p_.out_in_pos;
+  s.homed = out & p_.out_home_end;
+  if (out & p_.out_alarm && s.alarm == 0) s.alarm = 0xFFFF;  // alarm bit without a code
+  s.position_deg = ToDeg(a, static_cast<std::int32_t>((std::uint32_t(pos[0]) << 16) | pos[1]));
+  return s;
+}
+
+Status ModbusStageController::ResetAlarm(const std::string& name) {
+  auto found = Find(name);
+  if (!found.ok()) return found.error();
+  return Write32(**found, p_.alarm_reset, 1, "alarm reset");
+}
+
+Status ModbusStageController::StopAll() {
+  Status first = OkStatus();
+  for (const AxisSettings& a : axes_) {  // every axis, even if one fails
+    Status s = Write32(a, p_.input_command, p_.in_stop, "STOP");
+    if (!s.ok() && first.ok()) first = s;
+  }
+  return first;
+}
+
+Status ModbusStageController::StartMove(const AxisSettings& a, double deg) {
+  const auto steps = static_cast<std::uint32_t>(ToSteps(a, deg));
+  const auto speed = static_cast<std::uint32_t>(std::lround(a.speed_deg_s * a.steps_per_degree));
+  const auto acc =
+      static_cast<std::uint32_t>(std::lround(a.acceleration_deg_s2 * a.steps_per_degree));
+  const std::uint32_t v[8] = {0, p_.operation_absolute, steps, speed, acc, acc, p_.current, 1};
+  std::uint16_t w[16];
+  for (int k = 0; k < 8; ++k) {
+    w[2 * k] = static_cast<std::uint16_t>(v[k] >> 16);
+    w[2 * k + 1] = static_cast<std::uint16_t>(v[k] & 0xFFFF);
+  }
+  return Write(a, p_.direct_data, 16, w, "direct data (move)");
+}
+
+Status ModbusStageController::WaitAll(const std::vector<const AxisSettings*>& list, bool homing,
+                                      double timeout_s, const std::vector<double>& targets_deg) {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  std::vector<bool> done(list.size(), false);
+  for (;;) {
+    bool all = true;
+    for (std::size_t k = 0; k < list.size(); ++k) {
+      if (done[k]) continue;
+      const AxisSettings& a = *list[k];
+      auto st = ReadStatus(a.name);
+      if (!st.ok()) {
+        (void)StopAll();
+        return st.error();
+      }
+      if (st->alarm != 0) {
+        (void)StopAll();  // the others must not go on moving
+        return Error{ErrorCode::kDeviceFault, AlarmText(a, st->alarm)};
+      }
+      // Done: at rest, in position (or homed), and at the target - a status read right after
+      // the trigger might still show the previous IN-POS.
+      const bool at_target =
+          homing || std::abs(st->position_deg - targets_deg[k]) <= a.tolerance_deg;
+      if (!st->moving && (homing ? st->homed : st->in_position) && at_target) {
+        done[k] = true;
+      } else {
+        all = false;
+      }
+    }
+    if (all) return OkStatus();
+    if (std::chrono::steady_clock::now() > deadline) {
+      (void)StopAll();
+      std::string names;
+      for (std::size_t k = 0; k < list.size(); ++k)
+        if (!done[k]) names += (names.empty() ? "'" : ", '") + list[k]->name + "'";
+      return Error{ErrorCode::kTimeout, "axis " + names + " not " +
+                                            (homing ? "homed" : "in position") + " after " +
+                                            std::to_string(timeout_s) + " s; stages stopped"};
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+}
+
+Status ModbusStageController::MoveTo(const std::vector<std::pair<std::string, double>>& targets) {
+  // Everything is checked before anything moves.
+  std::vector<const AxisSettings*> list;
+  std::vector<double> goal;
+  for (const auto& [name, deg] : targets) {
+    auto found = Find(name);
+    if (!found.ok()) return found.error();
+    const AxisSettings& a = **found;
+    if (!(deg >= a.min_deg && deg <= a.max_deg))
+      return InvalidArgument("axis '" + name + "': target " + std::to_string(deg) +
+                             " deg is outside the travel limits [" + std::to_string(a.min_deg) +
+                             ", " + std::to_string(a.max_deg) + "]; nothing moved");
+    if (a.backlash_overshoot_deg > 0 && deg - a.backlash_overshoot_deg < a.min_deg)
+      return InvalidArgument("axis '" + name + "': target " + std::to_string(deg) +
+                             " deg leaves no room below it to approach from below (overshoot " +
+                             std::to_string(a.backlash_overshoot_deg) + " deg); nothing moved");
+    list.push_back(&a);
+    goal.push_back(deg);
+  }
+  // Phase 1: axes coming from above first go below their target by the overshoot; the others go
+  // straight there. Phase 2: the overshooting axes come up to the target.
+  std::vector<const AxisSettings*> first_axes, second_axes;
+  std::vector<double> first_goal, second_goal;
+  for (std::size_t k = 0; k < list.size(); ++k) {
+    const AxisSettings& a = *list[k];
+    auto st = ReadStatus(a.name);
+    if (!st.ok()) return st.error();
+    if (st->alarm != 0) return Error{ErrorCode::kDeviceFault, AlarmText(a, st->alarm)};
+    const bool from_above = st->position_deg > goal[k] + 0.5 / a.steps_per_degree;
+    if (a.backlash_overshoot_deg > 0 && from_above) {
+      first_axes.push_back(&a);
+      first_goal.push_back(goal[k] - a.backlash_overshoot_deg);
+      second_axes.push_back(&a);
+      second_goal.push_back(goal[k]);
+    } else {
+      first_axes.push_back(&a);
+      first_goal.push_back(goal[k]);
+    }
+  }
+  double timeout = 0;
+  for (const AxisSettings* a : list) timeout = std::max(timeout, a->move_timeout_s);
+  for (int phase = 0; phase < 2; ++phase) {
+    const auto& axes = phase == 0 ? first_axes : second_axes;
+    const auto& g = phase == 0 ? first_goal : second_goal;
+    if (axes.empty()) continue;
+    for (std::size_t k = 0; k < axes.size(); ++k) {
+      if (Status s = StartMove(*axes[k], g[k]); !s.ok()) {
+        (void)StopAll();
+        return s;
+      }
+    }
+    if (Status s = WaitAll(axes, false, timeout, g); !s.ok()) return s;
+  }
+  // Readback: every axis where it was sent.
+  for (std::size_t k = 0; k < list.size(); ++k) {
+    auto st = ReadStatus(list[k]->name);
+    if (!st.ok()) return st.error();
+    if (std::abs(st->position_deg - goal[k]) > list[k]->tolerance_deg)
+      return Error{ErrorCode::kDeviceFault, "axis '" + list[k]->name + "' reads back " +
+                                                std::to_string(st->position_deg) + " deg, target " +
+                                                std::to_string(goal[k]) + " deg"};
+  }
+  return OkStatus();
+}
+
+Status ModbusStageController::Home(const std::vector<std::string>& names) {
+  std::vector<const AxisSettings*> list;
+  if (names.empty()) {
+    for (const AxisSettings& a : axes_) list.push_back(&a);
+  } else {
+    for (const std::string& n : names) {
+      auto found = Find(n);
+      if (!found.ok()) return found.error();
+      list.push_back(*found);
+    }
+  }
+  double timeout = 0;
+  for (const AxisSettings* a : list) {
+    timeout = std::max(timeout, a->home_timeout_s);
+    if (Status s = Write32(*a, p_.input_command, p_.in_home, "ZHOME"); !s.ok()) return s;
+  }
+  return WaitAll(list, true, timeout, std::vector<double>(list.size(), 0.0));
+}
+
+}  // namespace gonio::backends

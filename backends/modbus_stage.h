@@ -1,0 +1,69 @@
+// The stage controller over Modbus (libmodbus), TCP or RTU. The register map is a profile from the
+// config, not constants: StageRegisterProfile's defaults are the map that the simulated
+// controller implements (docs/stage_register_map.md, after Oriental Motor AZ direct data).
+//
+// Bus faults: a request that times out or fails its CRC is retried (up to `retries` times); a
+// dropped TCP connection is reconnected and the request retried; a Modbus exception is a protocol
+// error and is not retried. Alarms and limit switches are kDeviceFault at once.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "devices/stage.h"
+
+namespace gonio::backends {
+
+using devices::AxisSettings;
+using devices::AxisStatus;
+using devices::ModbusLink;
+using devices::StageController;
+using devices::StageRegisterProfile;
+
+class ModbusStageController final : public StageController {
+ public:
+  // Connects and checks every axis answers its status. Errors name the link and the axis.
+  static Result<std::unique_ptr<ModbusStageController>> Open(ModbusLink link,
+                                                             std::vector<AxisSettings> axes,
+                                                             StageRegisterProfile profile = {});
+  ~ModbusStageController() override;
+
+  const std::vector<AxisSettings>& axes() const override { return axes_; }
+  Status MoveTo(const std::vector<std::pair<std::string, double>>& targets) override;
+  Status Home(const std::vector<std::string>& names = {}) override;
+  Status StopAll() override;
+  Result<AxisStatus> ReadStatus(const std::string& name) override;
+  Status ResetAlarm(const std::string& name) override;
+
+  // How many requests were retried, and reconnections made (for logs and tests).
+  int retried() const { return retried_; }
+  int reconnects() const { return reconnects_; }
+
+ private:
+  ModbusStageController() = default;
+  Result<const AxisSettings*> Find(const std::string& name) const;
+  Status Connect();
+  // One request with the retry policy; `what` names it in errors.
+  Status Read(const AxisSettings& a, std::uint16_t address, int count, std::uint16_t* out,
+              const std::string& what);
+  Status Write(const AxisSettings& a, std::uint16_t address, int count, const std::uint16_t* values,
+               const std::string& what);
+  Status Write32(const AxisSettings& a, std::uint16_t address, std::uint32_t v,
+                 const std::string& what);
+  Status StartMove(const AxisSettings& a, double deg);
+  // Waits until every axis in `list` satisfies `done` (IN-POS, or HOME-END), failing on alarms.
+  Status WaitAll(const std::vector<const AxisSettings*>& list, bool homing, double timeout_s,
+                 const std::vector<double>& targets_deg);
+  std::string AlarmText(const AxisSettings& a, std::uint32_t code) const;
+
+  ModbusLink link_;
+  std::vector<AxisSettings> axes_;
+  StageRegisterProfile p_;
+  std::mutex mu_;        // one request on the bus at a time
+  void* ctx_ = nullptr;  // modbus_t*
+  int retried_ = 0, reconnects_ = 0;
+};
+
+}  // namespace gonio::backends

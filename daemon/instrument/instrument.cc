@@ -1,0 +1,74 @@
+#include "daemon/instrument/instrument.h"
+
+#include <utility>
+
+#include "backends/aravis_camera.h"
+#include "backends/libusb_transport.h"
+#include "backends/modbus_stage.h"
+#include "backends/usbtmc_socket.h"
+#include "devices/scpi_power_meter.h"
+
+namespace gonio::daemon {
+
+Result<std::unique_ptr<devices::Camera>> OpenCamera(const config::InstrumentConfig& c) {
+  if (!c.camera_enabled) return InvalidArgument("the camera is disabled in the configuration");
+  auto cam = backends::AravisCamera::Open(c.camera);
+  if (!cam.ok()) return cam.error();
+  return std::unique_ptr<devices::Camera>(std::move(cam).value());
+}
+
+Result<std::unique_ptr<devices::StageController>> OpenStages(const config::InstrumentConfig& c) {
+  auto st = backends::ModbusStageController::Open(c.stage_link, c.axes, c.registers);
+  if (!st.ok()) return st.error();
+  return std::unique_ptr<devices::StageController>(std::move(st).value());
+}
+
+Result<OpenedMonitor> OpenMonitor(const config::InstrumentConfig& c) {
+  OpenedMonitor m;
+  if (c.monitor.transport == "socket") {
+    auto t = backends::UsbTmcSocketTransport::Connect(c.monitor.host, c.monitor.port);
+    if (!t.ok()) return t.error();
+    m.transport = std::move(t).value();
+  } else {
+    auto t = backends::LibUsbTmcTransport::Open(c.monitor.usb);
+    if (!t.ok()) return t.error();
+    m.transport = std::move(t).value();
+  }
+  auto meter = std::make_unique<devices::ScpiPowerMeter>(*m.transport, c.monitor.timeout_ms);
+  if (Status s = meter->SetWavelengthNm(c.monitor.wavelength_nm); !s.ok()) return s.error();
+  if (Status s = meter->SetAveraging(c.monitor.averaging); !s.ok()) return s.error();
+  m.monitor = std::move(meter);
+  return m;
+}
+
+acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
+                                       std::vector<acquisition::Specimen> specimens) {
+  acquisition::PlanContext ctx;
+  ctx.specimens = std::move(specimens);
+  ctx.axes = c.axes;
+  return ctx;
+}
+
+Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,
+                                  std::vector<acquisition::Specimen> specimens) {
+  Instrument in;
+  in.context = PlanContextOf(c, std::move(specimens));
+  auto camera = OpenCamera(c);
+  if (!camera.ok()) return camera.error();
+  in.camera = std::move(camera).value();
+  auto size = in.camera->ImageSize();
+  if (!size.ok()) return size.error();
+  in.context.image_width = size->width;
+  in.context.image_height = size->height;
+  auto stages = OpenStages(c);
+  if (!stages.ok()) return stages.error();
+  in.stages = std::move(stages).value();
+  if (c.monitor.enabled) {
+    auto m = OpenMonitor(c);
+    if (!m.ok()) return m.error();
+    in.monitor = std::move(m).value();
+  }
+  return in;
+}
+
+}  // namespace gonio::daemon

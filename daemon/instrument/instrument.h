@@ -1,0 +1,49 @@
+// Opening the instrument that a configuration describes, with the real backends: the one place
+// that names Aravis, libmodbus, libusb and the socket transport to gonio-sim's meter. goniod,
+// gonio-acquire and gonio-hw open their devices here; everything above works on the interfaces
+// (devices/), and config/ stays plain data.
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "acquisition/plan.h"
+#include "common/result.h"
+#include "config/instrument_config.h"
+#include "devices/camera.h"
+#include "devices/source_monitor.h"
+#include "devices/stage.h"
+#include "devices/usbtmc_transport.h"
+
+namespace gonio::daemon {
+
+Result<std::unique_ptr<devices::Camera>> OpenCamera(const config::InstrumentConfig& c);
+Result<std::unique_ptr<devices::StageController>> OpenStages(const config::InstrumentConfig& c);
+
+// A monitor and the transport under it (declared first, so it outlives the monitor), set to the
+// config's wavelength and averaging.
+struct OpenedMonitor {
+  std::unique_ptr<devices::UsbTmcTransport> transport;
+  std::unique_ptr<devices::SourceMonitor> monitor;
+};
+// Precondition: c.monitor.enabled.
+Result<OpenedMonitor> OpenMonitor(const config::InstrumentConfig& c);
+
+// What plans are checked against, without opening anything: the specimens and the axes' travel
+// limits; the image size is 0 (not checked).
+acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
+                                       std::vector<acquisition::Specimen> specimens);
+
+struct Instrument {
+  std::unique_ptr<devices::Camera> camera;
+  std::unique_ptr<devices::StageController> stages;
+  OpenedMonitor monitor;             // both null when the config has no monitor
+  acquisition::PlanContext context;  // PlanContextOf plus the camera's image size
+};
+
+// Opens the camera, the stages and the monitor (when configured), in that order; nothing moves.
+// The first error is returned as it came, naming the device.
+Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,
+                                  std::vector<acquisition::Specimen> specimens);
+
+}  // namespace gonio::daemon

@@ -1,0 +1,110 @@
+// The cooled camera as acquisition sees it: exposure, gain, black level, pixel format, region
+// and binning, one software-triggered frame at a time, and the sensor's temperature and cooler.
+// Frames are 16-bit images that view the transport's own buffer (no copy); the buffer returns to
+// the camera when the last copy of the Frame goes.
+#pragma once
+
+#include <atomic>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "common/result.h"
+
+namespace gonio::devices {
+
+// Vendors name cooling and the shutter differently (no SFNC standard): the config maps the
+// names. The cooling defaults are Allied Vision Goldeye's, which the simulated camera also uses.
+struct VendorFeatures {
+  std::string temperature_selector = "DeviceTemperatureSelector";  // empty: none
+  std::string temperature_selector_value = "Sensor";
+  std::string temperature = "DeviceTemperature";
+  std::string control_mode = "SensorTemperatureControlMode";  // enum; empty: no cooler
+  std::string control_on = "On", control_off = "Off";
+  std::string setpoint = "SensorTemperatureSetpointValue";
+  std::string setpoint_activate = "SensorTemperatureSetpointActivate";  // command; empty: none
+  // The shutter for dark frames (enum feature and its entries); empty: no shutter.
+  std::string shutter = "ShutterMode";
+  std::string shutter_open = "Open", shutter_closed = "Closed";
+  // Whether the sensor is integrating (SFNC AcquisitionStatus with its selector at
+  // ExposureActive), so the stages may move during readout; empty: the camera cannot say, and
+  // every frame is read out before anything moves.
+  std::string status_selector = "AcquisitionStatusSelector";
+  std::string status_selector_value = "ExposureActive";
+  std::string status = "AcquisitionStatus";
+};
+
+struct CameraSettings {
+  // A numeric IPv4 address (GigE Vision, opened directly: no discovery broadcast), or
+  // "usb3:<device id>" for USB3 Vision.
+  std::string address = "127.0.0.1";
+  std::string pixel_format = "Mono16";  // Mono16 | Mono12
+  double gain_db = 0;
+  int black_level = -1;  // ADU; < 0 leaves the camera's own
+  int binning = 1;
+  int roi_x = 0, roi_y = 0, roi_width = 0, roi_height = 0;  // 0 width/height: the full sensor
+  int buffers = 4;
+  double frame_timeout_s = 5;    // beyond the exposure time
+  int retries = 2;               // failed or incomplete frames re-triggered, per Snap
+  double open_timeout_s = 10;    // keep trying to open (another controller's control may linger)
+  double status_poll_s = 0.001;  // how often Expose() reads whether the exposure has ended
+  // Where the sensor stops being linear (full well), raw ADU: acquisition keeps pixels below.
+  double linear_limit_adu = 65535;
+  VendorFeatures features;
+};
+
+// One frame: `image` views the transport buffer, kept alive by `hold`.
+struct Frame {
+  cv::Mat1w image;
+  double exposure_s = 0;
+  std::uint64_t timestamp_ns = 0;  // the camera's
+  int attempts = 1;                // 1 + the retries this frame needed
+  std::shared_ptr<void> hold;
+};
+
+struct TemperatureWait {
+  double setpoint_c = -20;
+  double tolerance_c = 0.5;
+  double hold_s = 30;         // within tolerance continuously this long
+  double timeout_s = 900;     // real seconds
+  double ramp_c_per_min = 0;  // > 0: move the setpoint in steps at this rate (protects the sensor)
+  double poll_s = 0.5;
+  // When set, the wait ends with kAborted once this reads true (a daemon stopping or aborting).
+  const std::atomic<bool>* cancel = nullptr;
+};
+
+class Camera {
+ public:
+  virtual ~Camera() = default;
+  virtual std::string Identity() const = 0;  // "vendor model serial"
+  virtual Status SetExposure(double seconds) = 0;
+  virtual Result<double> Exposure() = 0;
+  // The frames' size (region and binning applied).
+  virtual Result<cv::Size> ImageSize() = 0;
+  // One software-triggered frame at the current settings. Errors: kTimeout (no frame within the
+  // exposure plus frame_timeout_s, after the retries), kDeviceFault (frames kept arriving
+  // incomplete), kNotConnected (the camera left and could not be reopened).
+  virtual Result<Frame> Snap() = 0;
+
+  // A frame in two halves, so the stages can move while the sensor reads out (a quarter second
+  // for a 512 x 512 CCD at 1 MHz). Expose() triggers one frame at the current settings and
+  // returns once the sensor has stopped integrating: from then on the scene may change.
+  // Retrieve() waits for that frame. Nothing is retried in between, since the scene may have
+  // moved: a frame lost after Expose() is Retrieve()'s error (kTimeout, kDeviceFault,
+  // kNotConnected), and the caller puts the scene back and takes it again with Snap().
+  // Expose() is kFailedPrecondition when ReportsExposureEnd() is false: use Snap().
+  virtual bool ReportsExposureEnd() const = 0;
+  virtual Status Expose() = 0;
+  virtual Result<Frame> Retrieve() = 0;
+  virtual Result<double> TemperatureC() = 0;
+  // Closes (dark frames) or opens the shutter. kInvalidArgument when the config names none.
+  virtual Status SetShutter(bool open) = 0;
+  virtual Status SetCooling(bool on, double setpoint_c) = 0;
+  // Turns the cooler on toward w.setpoint_c (ramped if asked) and waits until the sensor stays
+  // within tolerance for hold_s. Errors: kTimeout naming the temperature reached; kAborted when
+  // w.cancel was set.
+  virtual Status CoolAndWait(const TemperatureWait& w) = 0;
+};
+
+}  // namespace gonio::devices

@@ -1,0 +1,33 @@
+// A SCPI optical power meter over USBTMC (Thorlabs PM100 family command set, docs/reference.md
+// section 4): *IDN?, MEAS:POW?, SENS:CORR:WAV, SENS:AVER:COUN, SYST:ERR?. Settings are checked
+// against the meter's error queue. When the meter leaves the bus, one reopen is tried before an
+// error is returned.
+#pragma once
+
+#include <memory>
+
+#include "devices/source_monitor.h"
+#include "devices/usbtmc.h"
+
+namespace gonio::devices {
+
+class ScpiPowerMeter final : public SourceMonitor {
+ public:
+  // The transport must outlive the meter.
+  explicit ScpiPowerMeter(UsbTmcTransport& transport, int timeout_ms = 1000)
+      : tmc_(transport, timeout_ms) {}
+
+  Result<std::string> Identity() override;
+  Result<double> PowerW() override;
+  Status SetWavelengthNm(double nm) override;
+  Status SetAveraging(int count) override;
+  // The first entry of the error queue ("0,\"No error\"" when empty).
+  Result<std::string> NextError();
+
+ private:
+  Result<std::string> QueryWithReopen(const std::string& q);
+  Status SetAndCheck(const std::string& command);
+  UsbTmc tmc_;
+};
+
+}  // namespace gonio::devices

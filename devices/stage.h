@@ -1,0 +1,88 @@
+// The rotation stages as acquisition sees them: named axes in degrees. Moves of several axes run
+// at once and return when every axis is in position and its readback agrees with the target;
+// software travel limits refuse a target before anything moves; backlash is compensated by always
+// approaching a target from below. Alarms and limit hits are errors (kDeviceFault), never
+// retried; transient bus faults are retried by the backend within a bound.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "common/result.h"
+
+namespace gonio::devices {
+
+// One axis, in the instrument config's terms.
+struct AxisSettings {
+  std::string name;  // "sample", "arm", "azimuth"
+  int slave_id = 1;  // Modbus unit / RS-485 address
+  // angle (deg) = degrees_at_zero + steps / steps_per_degree (gear ratio and offset)
+  double steps_per_degree = 1000;
+  double degrees_at_zero = 0;
+  double min_deg = -180, max_deg = 180;  // software travel limits, inclusive
+  // Approach every target from below, overshooting by this much first when coming from above
+  // (0: no compensation). It must exceed the stage's backlash.
+  double backlash_overshoot_deg = 0;
+  double speed_deg_s = 10, acceleration_deg_s2 = 50;
+  double tolerance_deg = 0.005;  // readback must agree with the target within this
+  double move_timeout_s = 60;    // real seconds for one move to reach IN-POS
+  double home_timeout_s = 120;
+};
+
+// The Modbus stage controller's settings (backends/modbus_stage.h), plain data so that the
+// instrument's config can hold them without naming the backend.
+// Where the controller keeps what the driver uses; 32-bit values as two registers, upper first.
+struct StageRegisterProfile {
+  std::uint16_t direct_data = 0x0058;  // 16 registers: number, type, position, speed, acc, dec,
+                                       // current, trigger
+  std::uint32_t operation_absolute = 1;
+  std::uint32_t current = 1000;  // 0.1 % units, written with each move
+  std::uint16_t input_command = 0x007C;
+  std::uint16_t output_status = 0x007E;
+  std::uint16_t present_alarm = 0x0080;
+  std::uint16_t command_position = 0x00C6;
+  std::uint16_t alarm_reset = 0x0180;
+  std::uint32_t in_home = 1u << 4, in_stop = 1u << 5;
+  std::uint32_t out_home_end = 1u << 4, out_ready = 1u << 5, out_alarm = 1u << 7,
+                out_move = 1u << 13, out_in_pos = 1u << 14;
+};
+
+struct ModbusLink {
+  // "tcp": host (numeric) and port; "rtu": device and line settings.
+  std::string kind = "tcp";
+  std::string host = "127.0.0.1";
+  int port = 502;
+  std::string device;
+  int baud = 115200;
+  char parity = 'E';
+  int data_bits = 8, stop_bits = 1;
+  double response_timeout_s = 0.5;
+  int retries = 3;  // per request, for timeouts, CRC errors and dropped connections
+};
+
+struct AxisStatus {
+  double position_deg = 0;
+  bool ready = false, moving = false, in_position = false, homed = false;
+  std::uint32_t alarm = 0;  // 0: none
+};
+
+class StageController {
+ public:
+  virtual ~StageController() = default;
+  virtual const std::vector<AxisSettings>& axes() const = 0;
+
+  // Moves the named axes to their targets (deg) together and waits until all are in position.
+  // Errors: kInvalidArgument (unknown axis, target outside the travel limits; nothing moves),
+  // kDeviceFault (an alarm, with its code; a readback off target), kTimeout, kNotConnected.
+  virtual Status MoveTo(const std::vector<std::pair<std::string, double>>& targets) = 0;
+  // Homes the named axes (all when empty) together and waits for HOME-END.
+  virtual Status Home(const std::vector<std::string>& names = {}) = 0;
+  // Decelerates every axis to a stop (safe state); does not wait.
+  virtual Status StopAll() = 0;
+  virtual Result<AxisStatus> ReadStatus(const std::string& name) = 0;
+  virtual Status ResetAlarm(const std::string& name) = 0;
+};
+
+}  // namespace gonio::devices

@@ -1,0 +1,63 @@
+#include "fitting/protocol.h"
+
+#include <cmath>
+
+namespace gonio::fitting {
+
+namespace {
+
+Result<std::vector<FitSummary>> FitEach(std::span<const Sample> samples, const ProtocolOptions& o) {
+  std::vector<FitSummary> fits;
+  for (const ModelSpec& m : o.models) {
+    FitOptions fo = o.base;
+    fo.model = m;
+    auto r = Fit(samples, fo);
+    if (!r.ok()) return Error{r.error().code, Describe(m) + ": " + r.error().message};
+    fits.push_back(*r);
+  }
+  return fits;
+}
+
+}  // namespace
+
+Result<std::vector<ModelSpec>> ParseModels(std::span<const std::string> names, optics::SmithG1 g1) {
+  std::vector<ModelSpec> specs;
+  for (const std::string& name : names) {
+    auto family = ParseFamily(name);
+    if (!family)
+      return InvalidArgument("unknown model '" + name + "' (known: beckmann, ggx, phong, sun2008)");
+    specs.push_back({*family, g1});
+  }
+  if (specs.empty()) return InvalidArgument("no model to fit");
+  return specs;
+}
+
+bool ProtocolResult::AnyFitted() const {
+  for (const FitSummary& f : joint_fits)
+    if (f.status != FitStatus::kFailed) return true;
+  return false;
+}
+
+Result<ProtocolResult> RunProtocol(std::span<const Sample> samples,
+                                   const ProtocolOptions& options) {
+  ProtocolResult r;
+  r.groups = GroupByIncidence(samples);
+  const IncidenceGroup* normal = nullptr;
+  for (const IncidenceGroup& g : r.groups)
+    if (std::abs(g.theta_l_deg) < options.normal_incidence_deg) normal = &g;
+  r.protocol = normal != nullptr && r.groups.size() > 1;
+  if (r.protocol) {
+    auto fits = FitEach(normal->samples, options);
+    if (!fits.ok()) return fits.error();
+    r.normal_fits = std::move(fits).value();
+    for (const FitSummary& f : r.normal_fits)
+      r.predictions.push_back(PredictIncidences(f, samples));
+  }
+  auto joint = FitEach(samples, options);
+  if (!joint.ok()) return joint.error();
+  r.joint_fits = std::move(joint).value();
+  r.choice = SelectModel(r.joint_fits);
+  return r;
+}
+
+}  // namespace gonio::fitting

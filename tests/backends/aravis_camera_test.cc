@@ -1,0 +1,230 @@
+// The camera driver (backends/aravis_camera.h) against the simulated cooled CCD over real
+// GigE Vision on 127.0.0.1 (the CTest resource lock "gvcp"): opening by IP, frames that view the
+// stream's buffers, retries of incomplete and lost frames from the fault plan, reopening a camera
+// that went away, the split frame that lets the stages move during readout, and cooling to a
+// stable temperature.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <memory>
+
+#include "backends/aravis_camera.h"
+#include "sim/camera/camera.h"
+#include "sim/truth/ground_truth.h"
+
+namespace gonio {
+namespace {
+
+using backends::AravisCamera;
+using devices::CameraSettings;
+using sim::FaultKind;
+
+class CameraDriver : public ::testing::Test {
+ protected:
+  void Start(std::vector<sim::FaultEvent> faults = {}) {
+    plan = std::make_unique<sim::FaultPlan>(std::move(faults), 1);
+    sim::CameraOptions o = options;
+    o.sensor.sensor_width = o.sensor.sensor_height = 128;
+    o.sensor.mm_per_pixel = 0.64;
+    auto cam = sim::SimulatedCamera::StartGigE(
+        clock, scene,
+        [this] {
+          return sim::StageAngles{0, arm_deg.load(), 0};
+        },
+        lamp, o, plan.get());
+    ASSERT_TRUE(cam.ok()) << cam.error().message;
+    sim_camera = std::move(*cam);
+  }
+  std::unique_ptr<AravisCamera> Open(CameraSettings s = {}) {
+    s.frame_timeout_s = 0.5;
+    auto c = AravisCamera::Open(s);
+    EXPECT_TRUE(c.ok()) << c.error().message;
+    return c.ok() ? std::move(*c) : nullptr;
+  }
+
+  sim::ScaledClock clock{100.0};
+  sim::Lamp lamp{sim::LampOptions{.drift_per_hour = 0, .wander_amplitude = 0, .flicker_rms = 0}};
+  sim::Scene scene{sim::BenchGeometry{}, sim::MicrofacetTruth("beckmann", 0.344, 1.51)};
+  std::unique_ptr<sim::FaultPlan> plan;
+  sim::CameraOptions options;
+  std::atomic<double> arm_deg{180};  // the arm the camera sits on (180: straight through)
+  std::unique_ptr<sim::SimulatedCamera> sim_camera;
+};
+
+TEST_F(CameraDriver, OpensByIpAndFramesViewThePoolsBuffers) {
+  Start();
+  CameraSettings s;
+  s.buffers = 2;
+  s.retries = 0;
+  auto cam = Open(s);
+  ASSERT_TRUE(cam);
+  EXPECT_NE(cam->Identity().find("gonio"), std::string::npos) << cam->Identity();
+  ASSERT_TRUE(cam->SetExposure(0.05).ok());
+  EXPECT_NEAR(*cam->Exposure(), 0.05, 1e-6);
+  auto f1 = cam->Snap();
+  ASSERT_TRUE(f1.ok()) << f1.error().message;
+  EXPECT_EQ(f1->image.cols, 128);
+  EXPECT_EQ(f1->image.rows, 128);
+  EXPECT_GT(cv::mean(f1->image(cv::Rect(60, 60, 8, 8)))[0], 600);  // lit patch above bias 500
+  auto f2 = cam->Snap();
+  ASSERT_TRUE(f2.ok());
+  // Both buffers are held by the frames (views, not copies): a third frame has nowhere to land,
+  // and the caller is told so at once.
+  auto f3 = cam->Snap();
+  ASSERT_FALSE(f3.ok());
+  EXPECT_EQ(f3.error().code, ErrorCode::kBusy);
+  f1 = Error{ErrorCode::kAborted, "released"};  // gives its buffer back
+  EXPECT_TRUE(cam->Snap().ok());
+}
+
+TEST_F(CameraDriver, IncompleteAndLostFramesAreRetried) {
+  Start({sim::OnOpportunity(FaultKind::kFrameIncomplete, 1),
+         sim::OnOpportunity(FaultKind::kFrameDrop, 3)});
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  ASSERT_TRUE(cam->SetExposure(0.01).ok());
+  auto a = cam->Snap();  // frame 1 incomplete, frame 2 fine
+  ASSERT_TRUE(a.ok()) << a.error().message;
+  EXPECT_EQ(a->attempts, 2);
+  auto b = cam->Snap();  // frame 3 lost, frame 4 fine
+  ASSERT_TRUE(b.ok()) << b.error().message;
+  EXPECT_EQ(b->attempts, 2);
+}
+
+TEST_F(CameraDriver, FramesThatNeverComeGiveATimeoutAfterTheRetries) {
+  Start({sim::WithProbability(FaultKind::kFrameDrop, 1.0, 100)});
+  CameraSettings s;
+  s.retries = 1;
+  auto cam = Open(s);
+  ASSERT_TRUE(cam);
+  auto r = cam->Snap();
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kTimeout);
+  EXPECT_NE(r.error().message.find("after 1 retries"), std::string::npos) << r.error().message;
+}
+
+TEST_F(CameraDriver, ACameraThatWentAwayIsReopened) {
+  Start();
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  ASSERT_TRUE(cam->Snap().ok());
+  sim_camera.reset();  // power cycle: the camera leaves and comes back
+  Start();
+  auto f = cam->Snap();
+  ASSERT_TRUE(f.ok()) << f.error().message;
+  EXPECT_EQ(cam->reopens(), 1);
+}
+
+// The split frame (Camera::Expose / Retrieve): Expose() returns when the sensor stops
+// integrating, so an arm moved right after it leaves the frame as it was; the camera is read out
+// slowly here (8.2 s) so that a frame taking its angles at the readout's end would show the move.
+// The exposure (2 s, 20 ms of real time at x100) is long enough for the driver to see it active:
+// one that begins and ends between two status reads is only seen when its frame arrives.
+TEST_F(CameraDriver, ExposeReturnsAtTheExposuresEndSoAMoveDuringReadoutLeavesTheFrame) {
+  options.sensor_options.readout_pixel_rate_hz = 2e3;
+  Start();
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  ASSERT_TRUE(cam->ReportsExposureEnd());
+  ASSERT_TRUE(cam->SetExposure(2.0).ok());
+  const cv::Rect patch(60, 60, 8, 8);
+  auto level = [&](const devices::Frame& f) { return cv::mean(f.image(patch))[0] - 500; };
+  auto straight = cam->Snap();
+  ASSERT_TRUE(straight.ok()) << straight.error().message;
+  arm_deg = 150;
+  auto off = cam->Snap();
+  ASSERT_TRUE(off.ok()) << off.error().message;
+  const double lit = level(*straight), dim = level(*off);
+  ASSERT_GT(lit, 2 * dim) << "the patch must tell the two arm angles apart";
+  straight = off = Error{ErrorCode::kAborted, "released"};
+
+  arm_deg = 180;
+  const double t0 = clock.Now();
+  ASSERT_TRUE(cam->Expose().ok());
+  const double exposed_at = clock.Now() - t0;
+  arm_deg = 150;  // the readout has begun: the stages may go
+  auto f = cam->Retrieve();
+  ASSERT_TRUE(f.ok()) << f.error().message;
+  const double retrieved_at = clock.Now() - t0;
+  // Returned after the exposure (2 s) and well before the readout's end (8.2 s later).
+  EXPECT_GE(exposed_at, 2.0);
+  EXPECT_LT(exposed_at, 2.0 + 4.1);
+  EXPECT_GT(retrieved_at, 2.0 + 8.2);
+  EXPECT_NEAR(level(*f), lit, 0.1 * lit) << "dim " << dim;
+}
+
+TEST_F(CameraDriver, ARetrievalLostAfterExposeIsAnErrorAndNotRetried) {
+  Start();
+  CameraSettings s;
+  s.retries = 3;
+  auto cam = Open(s);
+  ASSERT_TRUE(cam);
+  auto r = cam->Retrieve();
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kFailedPrecondition);
+  sim_camera->DropFrames(1);
+  ASSERT_TRUE(cam->Expose().ok());
+  r = cam->Retrieve();
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kTimeout) << r.error().message;
+  auto again = cam->Snap();  // the caller's retake
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_EQ(again->attempts, 1);
+  // A camera without the status feature cannot split a frame: Expose says so.
+  CameraSettings none;
+  none.features.status = "NoSuchFeature";
+  cam.reset();
+  auto plain = Open(none);
+  ASSERT_TRUE(plain);
+  EXPECT_FALSE(plain->ReportsExposureEnd());
+  const Status e = plain->Expose();
+  ASSERT_FALSE(e.ok());
+  EXPECT_EQ(e.error().code, ErrorCode::kFailedPrecondition);
+  EXPECT_TRUE(plain->Snap().ok());
+}
+
+TEST_F(CameraDriver, CoolsToASetpointAndHoldsIt) {
+  Start();
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  // From ambient 20 C to 10 C with tau = 60 s: within 0.5 C after 3 tau = 180 s (1.8 s at x100).
+  devices::TemperatureWait w{.setpoint_c = 10,
+                             .tolerance_c = 0.5,
+                             .hold_s = 0.3,
+                             .timeout_s = 10,
+                             .ramp_c_per_min = 0,
+                             .poll_s = 0.05};
+  const Status s = cam->CoolAndWait(w);
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_NEAR(*cam->TemperatureC(), 10, 0.5);
+}
+
+TEST_F(CameraDriver, AFailedCoolerIsATimeoutThatSaysWhereTheSensorIs) {
+  Start({sim::AtTime(FaultKind::kCoolerFail, 0)});
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  devices::TemperatureWait w{.setpoint_c = -10,
+                             .tolerance_c = 0.5,
+                             .hold_s = 0.3,
+                             .timeout_s = 0.5,
+                             .ramp_c_per_min = 0,
+                             .poll_s = 0.05};
+  const Status s = cam->CoolAndWait(w);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, ErrorCode::kTimeout);
+  EXPECT_NE(s.error().message.find("sensor at 20"), std::string::npos) << s.error().message;
+}
+
+TEST(CameraDriverOpen, RefusesNamesThatWouldNeedDiscovery) {
+  CameraSettings s;
+  s.address = "my-camera.local";
+  auto c = AravisCamera::Open(s);
+  ASSERT_FALSE(c.ok());
+  EXPECT_EQ(c.error().code, ErrorCode::kInvalidArgument);
+  s.address = "127.0.0.1";
+  s.pixel_format = "RGB8";
+  EXPECT_FALSE(AravisCamera::Open(s).ok());
+}
+
+}  // namespace
+}  // namespace gonio

@@ -14,6 +14,11 @@
 //   Vec3<T> SampleWm(u)         m ~ D(m)|m.n|            (eq. 28-29, 31-32, 35-36)
 //   T PdfWm(m)                  D(m)|m.n|, density of SampleWm over solid angle
 //
+// Every sampler maps the closed unit square [0, 1]^2 to a finite unit normal strictly above the
+// horizon (m.n > 0): the end points of the uniforms, which eq. 28, 31 and 35 send to the horizon,
+// are moved in by the smallest step that keeps them inside. Every pdf is the density its sampler
+// draws, whatever G1 the distribution evaluates.
+//
 // Phong's width is an exponent, the others' a slope-like alpha; RoughnessToPhong() relates them.
 #pragma once
 
@@ -47,6 +52,23 @@ T SmithG1ExactBeckmann(const T& a) {
   if (a <= T(0)) return T(0);
   if (a > T(25)) return T(1);  // erf(a) = 1 and exp(-a^2) = 0 in double precision
   return T(2) / (T(1) + erf(a) + exp(-a * a) / (a * sqrt(T(kPi))));
+}
+
+// The largest double below 1 and the smallest positive normal double: the closed unit interval
+// of a uniform variate is moved into (0, 1) by these, so that no sampler meets its singular ends.
+inline constexpr double kOneMinusEpsilon = 1.0 - 0x1.0p-53;
+inline double OpenUnit(double u) {
+  return std::clamp(u, std::numeric_limits<double>::min(), kOneMinusEpsilon);
+}
+
+// Smith's Lambda for the exact Beckmann G1 (eq. 26) as a function of a = 1 / (alpha tan theta),
+// accurate also where G1 is within rounding of 1: Lambda = (exp(-a^2) / (a sqrt(pi)) - erfc(a)) / 2
+// there, instead of 1 / G1 - 1, which cancels to 0 for a above about 6. 0 where it underflows.
+inline double SmithLambdaExactBeckmann(double a) {
+  if (a <= 0) return std::numeric_limits<double>::infinity();
+  if (a < 2) return 1 / SmithG1ExactBeckmann(a) - 1;
+  if (a > 26) return 0;  // below 1e-296
+  return 0.5 * (std::exp(-a * a) / (a * std::sqrt(kPi)) - std::erfc(a));
 }
 
 // Inverse error function (double): Giles' single-precision approximation ("Approximating the
@@ -145,7 +167,7 @@ class BeckmannDistribution {
   Vec3<T> SampleWm(Point2 u) const {
     using std::log;
     using std::sqrt;
-    const T tan2 = -alpha_ * alpha_ * T(std::log1p(-u.x));
+    const T tan2 = -alpha_ * alpha_ * T(std::log1p(-std::min(u.x, kOneMinusEpsilon)));
     const T cosTheta = T(1) / sqrt(T(1) + tan2);
     const T sinTheta = SafeSqrt(T(1) - cosTheta * cosTheta);
     return SphericalDirection(sinTheta, cosTheta, T(2 * kPi * u.y));
@@ -154,19 +176,29 @@ class BeckmannDistribution {
 
   // Visible normals seen from w (either hemisphere, as GgxDistribution::SampleVisibleWm: from
   // below, the surface is seen from -w): density D_vis(w, m) = G1(w, m) max(0, w'.m) D(m) / |w.n|
-  // (exact Smith G1). Heitz and d'Eon 2014 in pbrt-v3's robust form (BeckmannSample11).
+  // with the EXACT Smith G1, whichever G1 this distribution evaluates: the sampler draws the
+  // exact visible-normal distribution (Heitz and d'Eon 2014 in pbrt-v3's robust form,
+  // BeckmannSample11), so its pdf is that density also for SmithG1::kRational (whose own G1
+  // differs by up to 0.35 %). An estimator f / pdf stays unbiased; f keeps the rational G1.
   Vec3<T> SampleVisibleWm(const Vec3<T>& w, Point2 u) const {
     return SampleVisibleUnflipped(CosTheta(w) < T(0) ? -w : w, u);
   }
   T PdfVisibleWm(const Vec3<T>& w, const Vec3<T>& wm) const {
-    return VisibleNormalDensity(*this, w, wm);
+    return VisibleNormalDensity(BeckmannDistribution(alpha_, SmithG1::kExact), w, wm);
   }
 
-  // Visible normals of the upper-hemisphere facets for any w with w.z > -1, NOT flipped: what a
-  // ray travelling along -w meets, also when it arrives from below the mean plane mid-walk
-  // (Heitz et al. 2016). Density max(0, w.m) D(m) / A(w) with projected area
-  // A(w) = cos(theta)(1 + Lambda(w)) for w.z > 0 and |cos(theta)| Lambda(-w) for w.z < 0.
+  // Visible normals of the upper-hemisphere facets for any unit w with w.z > -1, NOT flipped:
+  // what a ray travelling along -w meets, also when it arrives from below the mean plane
+  // mid-walk (Heitz et al. 2016). Density max(0, w.m) D(m) / A(w) with projected area
+  // A(w) = cos(theta)(1 + Lambda(w)) for w.z > 0 and |cos(theta)| Lambda(-w) for w.z < 0 (exact
+  // Smith Lambda). The whole domain is served: steep directions from below, whose visible facets
+  // lie in the far tail of the slopes, are sampled there exactly (SampleSlopeTail11). For
+  // w.z = -1 nothing is visible; the normal returned is then +n, with density 0.
+  // PdfVisibleUnflipped is that density; it underflows to 0 where the visible facets' D and the
+  // projected area both fall below about 1e-300 (from below, |cot theta| / alpha above about 26),
+  // where the sampler still serves.
   Vec3<T> SampleVisibleUnflipped(const Vec3<T>& w, Point2 u) const {
+    if (!(CosTheta(w) > T(-1))) return Vec3<T>(T(0), T(0), T(1));
     const Vec3<T> ws = Normalize(Vec3<T>(alpha_ * w.x, alpha_ * w.y, w.z));
     double slope_x, slope_y;
     SampleSlope11(ws.z, u, &slope_x, &slope_y);
@@ -182,7 +214,7 @@ class BeckmannDistribution {
     const T wm_dot = Dot(w, wm);
     if (wm_dot <= T(0) || CosTheta(wm) <= T(0)) return T(0);
     const T area =
-        CosTheta(w) > T(0) ? CosTheta(w) * (T(1) + Lambda(w)) : -CosTheta(w) * Lambda(-w);
+        CosTheta(w) > T(0) ? CosTheta(w) * (T(1) + ExactLambda(w)) : -CosTheta(w) * ExactLambda(-w);
     return area > T(0) ? wm_dot * D(wm) / area : T(0);
   }
 
@@ -194,21 +226,30 @@ class BeckmannDistribution {
   }
 
  private:
+  T ExactLambda(const Vec3<T>& w) const { return T(SmithLambdaExactBeckmann(double(A(w)))); }
+
   // Slope of the unit-width visible distribution for a direction at cos(theta) in (-1, 1]
   // (pbrt-v3's BeckmannSample11: invert the CDF in the erf domain by safeguarded Newton). The
   // CDF expression holds for cos(theta) < 0 as well (it is cos(theta) (1 + Lambda) normalised).
   static void SampleSlope11(double cosThetaI, Point2 u, double* slope_x, double* slope_y) {
     if (cosThetaI > 0.99999999) {
-      const double r = std::sqrt(-std::log1p(-u.x));
+      const double r = std::sqrt(-std::log1p(-std::min(u.x, kOneMinusEpsilon)));
       *slope_x = r * std::cos(2 * kPi * u.y);
       *slope_y = r * std::sin(2 * kPi * u.y);
       return;
     }
     const double sinThetaI = std::sqrt(std::max(0.0, 1 - cosThetaI * cosThetaI));
     const double tanThetaI = sinThetaI / cosThetaI, cotThetaI = cosThetaI / sinThetaI;
+    *slope_y = ErfInv(2 * std::clamp(u.y, 1e-12, 1 - 1e-12) - 1);
+    // Seen steeply from below, every visible facet lies beyond the slope cot(theta) < -2, where
+    // the erf-domain search below runs out of precision (1 + erf(cot) underflows by -5.9).
+    if (cotThetaI < -2) {
+      *slope_x = SampleSlopeTail11(-cotThetaI, u.x);
+      return;
+    }
     // Search in the erf domain, [a, c]; b from Jakob's fitted initial guess.
     double a = -1, c = std::erf(cotThetaI);
-    const double x = std::max(u.x, 1e-12);
+    const double x = std::clamp(u.x, 1e-12, 1 - 1e-12);
     const double thetaI = std::acos(cosThetaI);
     const double fit = 1 + thetaI * (-0.876 + thetaI * (0.4265 - 0.0594 * thetaI));
     double b = c - (1 + c) * std::pow(1 - x, fit);
@@ -227,7 +268,49 @@ class BeckmannDistribution {
       b -= value / derivative;
     }
     *slope_x = ErfInv(b);
-    *slope_y = ErfInv(2 * std::clamp(u.y, 1e-12, 1 - 1e-12) - 1);
+  }
+
+  // The slope x < -c (c > 2) of a facet visible from a direction with cot(theta) = -c: its
+  // density is proportional to (cot - x) exp(-x^2) (the unit-width Beckmann slopes weighted by the
+  // projected area), that is, with x = -c - r / (2c), to q(r) = r exp(-r - r^2 / (4c^2)) for r > 0.
+  // The CDF of q is inverted exactly: its integrals by 8-point Gauss-Legendre on panels of width
+  // at most 1 (the integrand is smooth; the tail beyond r = 40 holds less than 1e-16), Newton
+  // steps safeguarded by bisection. No cancellation at any c: nothing here is exp(c^2)-scaled.
+  static double SampleSlopeTail11(double c, double u) {
+    if (!(c < 1e150)) return -c;  // looking straight up from below: the limit
+    const double k = 1 / (4 * c * c);
+    auto q = [k](double r) { return r * std::exp(-r - k * r * r); };
+    auto integral = [&](double r0, double r1) {  // of q over [r0, r1], either order
+      static constexpr double kX[4] = {0.1834346424956498, 0.5255324099163290, 0.7966664774136267,
+                                       0.9602898564975363};
+      static constexpr double kW[4] = {0.3626837833783620, 0.3137066458778873, 0.2223810344533745,
+                                       0.1012285362903763};
+      const int panels = std::max(1, int(std::ceil(std::abs(r1 - r0))));
+      const double h = (r1 - r0) / panels;
+      double sum = 0;
+      for (int p = 0; p < panels; ++p) {
+        const double mid = r0 + (p + 0.5) * h;
+        for (int i = 0; i < 4; ++i)
+          sum += kW[i] * (q(mid - 0.5 * h * kX[i]) + q(mid + 0.5 * h * kX[i]));
+      }
+      return 0.5 * h * sum;
+    };
+    constexpr double kR = 40;
+    const double target = OpenUnit(u) * integral(0, kR);
+    double lo = 0, hi = kR, r = 1.68, cdf = integral(0, r);  // r: about the median of q
+    for (int it = 0; it < 60; ++it) {
+      const double value = cdf - target;
+      if (value > 0)
+        hi = r;
+      else
+        lo = r;
+      if (std::abs(value) <= 1e-14 * target || hi - lo <= 1e-15 * hi) break;
+      double next = r - value / q(r);
+      if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+      cdf += integral(r, next);
+      r = next;
+    }
+    return -c - r / (2 * c);
   }
 
   T alpha_;
@@ -277,7 +360,8 @@ class GgxDistribution {
   // eq. 35-36: theta_m = arctan(alpha sqrt(xi_1) / sqrt(1 - xi_1)), phi_m = 2 pi xi_2.
   Vec3<T> SampleWm(Point2 u) const {
     using std::sqrt;
-    const T tan2 = alpha_ * alpha_ * T(u.x / (1 - u.x));
+    const double x = std::min(u.x, kOneMinusEpsilon);
+    const T tan2 = alpha_ * alpha_ * T(x / (1 - x));
     const T cosTheta = T(1) / sqrt(T(1) + tan2);
     const T sinTheta = SafeSqrt(T(1) - cosTheta * cosTheta);
     return SphericalDirection(sinTheta, cosTheta, T(2 * kPi * u.y));
@@ -307,8 +391,10 @@ class GgxDistribution {
     const T s = T(0.5) * (T(1) + wh.z);
     p2 = (T(1) - s) * SafeSqrt(T(1) - p1 * p1) + s * p2;
     const Vec3<T> nh = t1 * p1 + t2 * p2 + wh * SafeSqrt(T(1) - p1 * p1 - p2 * p2);
-    // Back to the ellipsoid configuration.
-    return Normalize(Vec3<T>(alpha_ * nh.x, alpha_ * nh.y, nh.z > T(0) ? nh.z : T(0)));
+    // Back to the ellipsoid configuration. u.x = 1 (the disk's rim) and rounding can put nh on the
+    // horizon; it is kept just above it, where the density is the limit of its neighbours'.
+    const T z = nh.z > T(1e-300) ? nh.z : T(1e-300);
+    return Normalize(Vec3<T>(alpha_ * nh.x, alpha_ * nh.y, z));
   }
   T PdfVisibleWm(const Vec3<T>& w, const Vec3<T>& wm) const {
     return VisibleNormalDensity(*this, w, wm);
@@ -359,7 +445,8 @@ class PhongDistribution {
   // eq. 31-32: theta_m = arccos(xi_1^(1 / (alpha_p + 2))), phi_m = 2 pi xi_2.
   Vec3<T> SampleWm(Point2 u) const {
     using std::pow;
-    const T cosTheta = pow(T(u.x), T(1) / (exponent_ + T(2)));
+    // xi_1 = 0 would be the horizon (eq. 31): moved in to the smallest normal double.
+    const T cosTheta = pow(T(OpenUnit(u.x)), T(1) / (exponent_ + T(2)));
     const T sinTheta = SafeSqrt(T(1) - cosTheta * cosTheta);
     return SphericalDirection(sinTheta, cosTheta, T(2 * kPi * u.y));
   }

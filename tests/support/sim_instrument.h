@@ -54,7 +54,9 @@ class SimInstrument {
   }
 
   ~SimInstrument() {
-    opened_ = {};  // the backends close before the devices they talk to stop
+    // The backends close before the devices they talk to stop; the meter before its transport.
+    opened_.monitor.monitor.reset();
+    opened_ = {};
     simulated.reset();
   }
 

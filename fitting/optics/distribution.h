@@ -319,7 +319,7 @@ class BeckmannDistribution {
 
 // ---------------------------------------------------------------------------------------------
 // GGX (Trowbridge-Reitz), eq. 33 (D), 34 (G1), 35-36 (sampling); visible normals after Heitz
-// 2018 (the density of eq. 3b of seeds/geometric-microfacet-bsdf.md). alpha_g > 0.
+// 2018 (the density of eq. 3b of the geometric seed, docs/reference.md source 4). alpha_g > 0.
 template <typename T>
 class GgxDistribution {
  public:

@@ -5,6 +5,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <boost/math/special_functions/gamma.hpp>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -29,73 +30,100 @@ double RawFromEta(double eta) {
   return std::log(u / (1 - u));
 }
 
-// Residual with eta free: the whole model on Jets.
+// How one sample is modelled: at its nominal pair (one geometry, weight 1), or through its
+// response's rays (eq. R1: weights w_j / N). The geometry is precomputed at the fit's eta.
+struct SampleModel {
+  int mode = 0;  // 0: the point model; 1: the rectangle's rays; 2: rays and apertures
+  std::vector<FixedGeometry> g;
+  std::vector<double> w;
+};
+
+// sum_j w_j factor_j D G_j: the model at k = 1 and fixed eta.
+template <typename T>
+T FixedEtaValue(const ModelSpec& model, const SampleModel& sm, const T& width) {
+  T sum(0);
+  for (std::size_t j = 0; j < sm.g.size(); ++j)
+    if (sm.g[j].factor > 0)
+      sum += T(sm.w[j] * sm.g[j].factor) * DTimesShadowing(model, sm.g[j], width);
+  return sum;
+}
+
+// Residual with eta free: the whole model on Jets, over the sample's pairs.
 struct Residual {
   ModelSpec model;
-  Vec3<double> l, v;
-  double value, inv_sigma;
+  const SampleModel* sm;
+  double value, inv_sigma, floor_unit;
 
   template <typename T>
-  bool operator()(const T* log_width, const T* log_k, const T* eta_raw, T* r) const {
+  bool operator()(const T* log_width, const T* log_k, const T* eta_raw, const T* floor,
+                  T* r) const {
     using std::exp;
-    const T m = MeasurementModel(model, Vec3<T>(l), Vec3<T>(v), exp(log_width[0]), exp(log_k[0]),
-                                 EtaFromRaw(eta_raw[0]));
-    r[0] = (m - T(value)) * T(inv_sigma);
+    const T width = exp(log_width[0]), k = exp(log_k[0]), eta = EtaFromRaw(eta_raw[0]);
+    T m(0);
+    for (std::size_t j = 0; j < sm->g.size(); ++j)
+      m += T(sm->w[j]) *
+           MeasurementModel(model, Vec3<T>(sm->g[j].l), Vec3<T>(sm->g[j].v), width, k, eta);
+    r[0] = (m + floor[0] * T(floor_unit) - T(value)) * T(inv_sigma);
     return true;
   }
 };
 
 // Residual with eta fixed: the geometry is precomputed (model.h, FixedGeometry) and only
-// D * shadowing is differentiated, with respect to two parameters.
+// D * shadowing is differentiated.
 struct FixedEtaResidual {
   ModelSpec model;
-  FixedGeometry g;
-  double value, inv_sigma;
+  const SampleModel* sm;
+  double value, inv_sigma, floor_unit;
 
   template <typename T>
-  bool operator()(const T* log_width, const T* log_k, T* r) const {
+  bool operator()(const T* log_width, const T* log_k, const T* floor, T* r) const {
     using std::exp;
-    const T m = g.factor > 0
-                    ? exp(log_k[0]) * T(g.factor) * DTimesShadowing(model, g, exp(log_width[0]))
-                    : T(0);
-    r[0] = (m - T(value)) * T(inv_sigma);
+    const T m = exp(log_k[0]) * FixedEtaValue(model, *sm, exp(log_width[0]));
+    r[0] = (m + floor[0] * T(floor_unit) - T(value)) * T(inv_sigma);
     return true;
   }
 };
 
 // All samples in one residual block (eta fixed, no robust loss): the same arithmetic without
 // Ceres' per-block bookkeeping, which dominates the cost of small fits. A robust loss applies
-// per residual block, so with one the samples keep a block each.
+// per residual block, so with one the samples keep a block each. Point-model samples share the
+// light part of the shadowing per incidence.
 struct BatchFixedEtaResidual {
   ModelSpec model;
-  std::span<const FixedGeometry> g;
+  std::span<const SampleModel> sm;
   std::span<const Sample> samples;
-  std::vector<Vec3<double>> lights;   // distinct light directions (incidences)
-  std::vector<std::size_t> light_of;  // per sample, index into lights
+  double floor_unit;
+  std::vector<Vec3<double>> lights;   // distinct light directions of point-model samples
+  std::vector<std::size_t> light_of;  // per sample, index into lights (point model only)
 
-  BatchFixedEtaResidual(const ModelSpec& m, std::span<const FixedGeometry> geometry,
-                        std::span<const Sample> s)
-      : model(m), g(geometry), samples(s), light_of(s.size()) {
+  BatchFixedEtaResidual(const ModelSpec& m, std::span<const SampleModel> models,
+                        std::span<const Sample> s, double floor_scale)
+      : model(m), sm(models), samples(s), floor_unit(floor_scale), light_of(s.size()) {
     for (std::size_t i = 0; i < s.size(); ++i) {
+      if (sm[i].mode != 0) continue;
+      const Vec3<double>& l = sm[i].g[0].l;
       std::size_t k = 0;
-      while (k < lights.size() && optics::LengthSquared(lights[k] - s[i].light) > 0) ++k;
-      if (k == lights.size()) lights.push_back(s[i].light);
+      while (k < lights.size() && optics::LengthSquared(lights[k] - l) > 0) ++k;
+      if (k == lights.size()) lights.push_back(l);
       light_of[i] = k;
     }
   }
 
   template <typename T>
-  bool operator()(const T* log_width, const T* log_k, T* r) const {
+  bool operator()(const T* log_width, const T* log_k, const T* floor, T* r) const {
     using std::exp;
     const T width = exp(log_width[0]), k = exp(log_k[0]);
     std::vector<T> k_shadow_light(lights.size());
     for (std::size_t j = 0; j < lights.size(); ++j)
       k_shadow_light[j] = k * ShadowingLight(model, lights[j], width);
-    for (std::size_t i = 0; i < g.size(); ++i) {
-      const T m = g[i].factor > 0 ? k_shadow_light[light_of[i]] * T(g[i].factor) *
-                                        DTimesShadowingView(model, g[i], width)
+    const T b = floor[0] * T(floor_unit);
+    for (std::size_t i = 0; i < sm.size(); ++i) {
+      const FixedGeometry& g0 = sm[i].g[0];
+      const T m = sm[i].mode != 0 ? k * FixedEtaValue(model, sm[i], width)
+                  : g0.factor > 0 ? k_shadow_light[light_of[i]] * T(g0.factor) *
+                                        DTimesShadowingView(model, g0, width)
                                   : T(0);
-      r[i] = (m - T(samples[i].value)) * T(1 / samples[i].sigma);
+      r[i] = (m + b - T(samples[i].value)) * T(1 / samples[i].sigma);
     }
     return true;
   }
@@ -178,7 +206,7 @@ bool Covariance(ceres::Problem& problem, std::vector<double*> blocks, Eigen::Mat
 // One local solve. The problem holds pointers to x, so a LocalFit lives on the heap and never
 // moves while its problem is in use (the covariance is computed on the winner's problem).
 struct LocalFit {
-  double x[3];  // log width, log k, eta raw
+  double x[4];  // log width, log k, eta raw, floor (in floor units)
   double cost = std::numeric_limits<double>::infinity();
   bool converged = false;
   int iterations = 0;
@@ -186,51 +214,62 @@ struct LocalFit {
   std::unique_ptr<ceres::Problem> problem;
 };
 
-std::unique_ptr<LocalFit> SolveFrom(std::span<const Sample> samples,
-                                    std::span<const FixedGeometry> geometry, const FitOptions& o,
-                                    double width, double k) {
+// What a solve needs besides the options: the samples' models and the floor's unit.
+struct Problem {
+  std::span<const Sample> samples;
+  std::span<const SampleModel> models;
+  bool fit_floor = false;
+  double floor_unit = 1;  // the floor parameter is floor / floor_unit: O(1) for the solver
+};
+
+std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, double width, double k,
+                                    double eta, double floor) {
   auto fit = std::make_unique<LocalFit>();
   LocalFit& f = *fit;
   f.x[0] = std::log(width);
   f.x[1] = std::log(k);
-  f.x[2] = RawFromEta(o.eta);
+  f.x[2] = RawFromEta(eta);
+  f.x[3] = floor / p.floor_unit;
   f.problem = std::make_unique<ceres::Problem>();
   ceres::Problem* problem = f.problem.get();
   const bool automatic = o.derivatives == Derivatives::kAutomatic;
   if (!o.fit_eta && o.loss == Loss::kNone) {
-    const int n = static_cast<int>(samples.size());
-    auto* r = new BatchFixedEtaResidual(o.model, geometry, samples);
+    const int n = static_cast<int>(p.samples.size());
+    auto* r = new BatchFixedEtaResidual(o.model, p.models, p.samples, p.floor_unit);
     ceres::CostFunction* cost =
         automatic
             ? static_cast<ceres::CostFunction*>(
-                  new ceres::AutoDiffCostFunction<BatchFixedEtaResidual, ceres::DYNAMIC, 1, 1>(r,
-                                                                                               n))
+                  new ceres::AutoDiffCostFunction<BatchFixedEtaResidual, ceres::DYNAMIC, 1, 1, 1>(
+                      r, n))
             : new ceres::NumericDiffCostFunction<BatchFixedEtaResidual, ceres::CENTRAL,
-                                                 ceres::DYNAMIC, 1, 1>(r, ceres::TAKE_OWNERSHIP, n);
-    problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1]);
+                                                 ceres::DYNAMIC, 1, 1, 1>(r, ceres::TAKE_OWNERSHIP,
+                                                                          n);
+    problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3]);
   }
-  for (std::size_t i = 0; i < samples.size() && (o.fit_eta || o.loss != Loss::kNone); ++i) {
-    const Sample& s = samples[i];
+  for (std::size_t i = 0; i < p.samples.size() && (o.fit_eta || o.loss != Loss::kNone); ++i) {
+    const Sample& s = p.samples[i];
     ceres::LossFunction* loss = nullptr;
     if (o.loss == Loss::kHuber) loss = new ceres::HuberLoss(o.loss_scale);
     if (o.loss == Loss::kCauchy) loss = new ceres::CauchyLoss(o.loss_scale);
     if (o.fit_eta) {
-      auto* r = new Residual{o.model, s.light, s.view, s.value, 1 / s.sigma};
-      ceres::CostFunction* cost =
-          automatic ? static_cast<ceres::CostFunction*>(
-                          new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1>(r))
-                    : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1>(r);
-      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2]);
-    } else {
-      auto* r = new FixedEtaResidual{o.model, geometry[i], s.value, 1 / s.sigma};
+      auto* r = new Residual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit};
       ceres::CostFunction* cost =
           automatic
               ? static_cast<ceres::CostFunction*>(
-                    new ceres::AutoDiffCostFunction<FixedEtaResidual, 1, 1, 1>(r))
-              : new ceres::NumericDiffCostFunction<FixedEtaResidual, ceres::CENTRAL, 1, 1, 1>(r);
-      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1]);
+                    new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1>(r))
+              : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1>(r);
+      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2], &f.x[3]);
+    } else {
+      auto* r = new FixedEtaResidual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit};
+      ceres::CostFunction* cost =
+          automatic
+              ? static_cast<ceres::CostFunction*>(
+                    new ceres::AutoDiffCostFunction<FixedEtaResidual, 1, 1, 1, 1>(r))
+              : new ceres::NumericDiffCostFunction<FixedEtaResidual, ceres::CENTRAL, 1, 1, 1, 1>(r);
+      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[3]);
     }
   }
+  if (!p.fit_floor) problem->SetParameterBlockConstant(&f.x[3]);
 
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_QR;
@@ -247,6 +286,77 @@ std::unique_ptr<LocalFit> SolveFrom(std::span<const Sample> samples,
   f.converged = summary.termination_type == ceres::CONVERGENCE && std::isfinite(f.cost);
   if (!f.converged) f.message = summary.message;
   return fit;
+}
+
+// ---- The instrument response: which samples need it ---------------------------------------
+
+// Each sample's responses, computed once per fit when first needed.
+struct ResponseCache {
+  std::vector<std::optional<Response>> rectangle, apertures;
+  explicit ResponseCache(std::size_t n) : rectangle(n), apertures(n) {}
+};
+
+// sum_j w_j f(l_j, v_j) |cos theta_lj| / N at k = 1 (eq. R1), in double.
+double ResponseValue(const ModelSpec& m, const Response& r, double width, double eta) {
+  double sum = 0;
+  for (const ResponseRay& ray : r.rays)
+    sum += ray.weight * MeasurementModel(m, ray.l, ray.v, width, 1.0, eta);
+  return sum / r.pixels;
+}
+
+// The aperture-averaged point model at the nominal pair, at k = 1.
+double NominalAperturesValue(const ModelSpec& m, const Response& r, double width, double eta) {
+  double sum = 0;
+  for (const ResponseRay& ray :
+       ApertureCones(r.l0, r.v0, 1.0, r.source_half_angle, r.receiver_half_angle))
+    sum += ray.weight * MeasurementModel(m, ray.l, ray.v, width, 1.0, eta);
+  return sum;
+}
+
+// The mode a sample needs at (width, k, eta): the point model while the response changes its
+// prediction by at most tolerance * sigma, the rectangle's rays otherwise, and the apertures on
+// top where they change the nominal value by more than that too.
+Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, ResponseCache& cache,
+                       double width, double k, double eta, double tolerance) {
+  if (!s.response || !s.response->setup) return 0;
+  auto& rect = cache.rectangle[i];
+  if (!rect) {
+    auto r = ComputeResponse(*s.response->setup, s.response->at);
+    if (!r.ok())
+      return Error{r.error().code, Where(s, i) + ": its instrument response: " + r.error().message};
+    rect = std::move(r).value();
+  }
+  const double point = k * MeasurementModel(m, rect->l0, rect->v0, width, 1.0, eta);
+  const double allowed = tolerance * s.sigma;
+  int mode = std::abs(k * ResponseValue(m, *rect, width, eta) - point) > allowed ? 1 : 0;
+  if (k * std::abs(NominalAperturesValue(m, *rect, width, eta) - point / k) > allowed) mode = 2;
+  if (mode == 2 && !cache.apertures[i]) {
+    auto r = ComputeResponseWithApertures(*s.response->setup, s.response->at);
+    if (!r.ok())
+      return Error{r.error().code, Where(s, i) + ": its instrument response: " + r.error().message};
+    cache.apertures[i] = std::move(r).value();
+  }
+  return mode;
+}
+
+SampleModel BuildModel(const Sample& s, std::size_t i, const ResponseCache& cache, int mode,
+                       double eta) {
+  SampleModel sm;
+  sm.mode = mode;
+  const Response* r = mode == 2 ? &*cache.apertures[i] : mode == 1 ? &*cache.rectangle[i] : nullptr;
+  if (r == nullptr) {
+    const auto& rect = cache.rectangle[i];
+    sm.g.push_back(rect ? PrecomputeGeometry(rect->l0, rect->v0, eta)
+                        : PrecomputeGeometry(s.light, s.view, eta));
+    sm.w.push_back(1);
+    return sm;
+  }
+  sm.g.reserve(r->rays.size());
+  for (const ResponseRay& ray : r->rays) {
+    sm.g.push_back(PrecomputeGeometry(ray.l, ray.v, eta));
+    sm.w.push_back(ray.weight / r->pixels);
+  }
+  return sm;
 }
 
 }  // namespace
@@ -279,8 +389,19 @@ Status FitOptions::Validate() const {
 }
 
 double Predict(const FitSummary& fit, const Sample& s) {
-  return MeasurementModel(fit.model, s.light, s.view, fit.width.value, fit.scale.value,
-                          fit.eta.value);
+  const double w = fit.width.value, k = fit.scale.value, eta = fit.eta.value;
+  double value = MeasurementModel(fit.model, s.light, s.view, w, k, eta);
+  if (s.response && s.response->setup) {
+    ResponseCache cache(1);
+    auto mode = DecideMode(fit.model, s, 0, cache, w, k, eta, FitOptions{}.response_tolerance);
+    if (mode.ok()) {
+      const SampleModel sm = BuildModel(s, 0, cache, *mode, eta);
+      value = 0;
+      for (std::size_t j = 0; j < sm.g.size(); ++j)
+        value += sm.w[j] * MeasurementModel(fit.model, sm.g[j].l, sm.g[j].v, w, k, eta);
+    }
+  }
+  return value + fit.floor.value;
 }
 
 std::vector<IncidenceGroup> GroupByIncidence(std::span<const Sample> samples) {
@@ -357,35 +478,49 @@ std::vector<ScanPoint> Starts(std::span<const Sample> samples,
   return starts;
 }
 
+// The model's value of every sample at a solution.
+std::vector<double> Predictions(const Problem& p, const FitOptions& o, const FitSummary& out) {
+  std::vector<double> predicted(p.samples.size());
+  for (std::size_t i = 0; i < p.samples.size(); ++i) {
+    const SampleModel& sm = p.models[i];
+    double m = 0;
+    if (o.fit_eta)
+      for (std::size_t j = 0; j < sm.g.size(); ++j)
+        m += sm.w[j] * MeasurementModel(o.model, sm.g[j].l, sm.g[j].v, out.width.value,
+                                        out.scale.value, out.eta.value);
+    else
+      m = out.scale.value * FixedEtaValue(o.model, sm, out.width.value);
+    predicted[i] = m + out.floor.value;
+  }
+  return predicted;
+}
+
 // Residuals, chi2 and the information criteria at the solution.
-void FillStatistics(std::span<const Sample> samples, std::span<const FixedGeometry> geometry,
-                    const FitOptions& o, FitSummary& out) {
-  // Predictions at the solution: the fast path when eta stayed where the geometry was computed.
-  std::vector<double> predicted(samples.size());
-  for (std::size_t i = 0; i < samples.size(); ++i)
-    predicted[i] = o.fit_eta ? Predict(out, samples[i])
-                   : geometry[i].factor > 0
-                       ? out.scale.value * geometry[i].factor *
-                             DTimesShadowing(o.model, geometry[i], out.width.value)
-                       : 0.0;
-  out.residuals.reserve(samples.size());
+void FillStatistics(const Problem& p, const FitOptions& o, FitSummary& out) {
+  const std::vector<double> predicted = Predictions(p, o, out);
+  out.residuals.clear();
+  out.residuals.reserve(p.samples.size());
   out.chi2 = 0;
-  for (std::size_t i = 0; i < samples.size(); ++i) {
-    const double r = (predicted[i] - samples[i].value) / samples[i].sigma;
+  for (std::size_t i = 0; i < p.samples.size(); ++i) {
+    const double r = (predicted[i] - p.samples[i].value) / p.samples[i].sigma;
     out.residuals.push_back(r);
     out.chi2 += r * r;
   }
   out.reduced_chi2 = out.chi2 / (out.n_points - out.n_params);
   out.aic = out.chi2 + 2.0 * out.n_params;
   out.bic = out.chi2 + out.n_params * std::log(double(out.n_points));
-  out.points_in_lobe = PointsInLobe(samples, predicted);
+  // The lobe is judged on the surface's model, without the floor.
+  std::vector<double> lobe(predicted);
+  for (double& v : lobe) v -= out.floor.value;
+  out.points_in_lobe = PointsInLobe(p.samples, lobe);
 }
 
-// The parameters' sigmas from the covariance of (log width, log k[, eta raw]) by the delta
-// method. False when the covariance is singular or not positive.
-bool FillUncertainties(LocalFit& winner, const FitOptions& o, FitSummary& out) {
+// The parameters' sigmas from the covariance of (log width, log k[, eta raw][, floor]) by the
+// delta method. False when the covariance is singular or not positive.
+bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, FitSummary& out) {
   std::vector<double*> blocks = {winner.x + 0, winner.x + 1};
   if (o.fit_eta) blocks.push_back(winner.x + 2);
+  if (p.fit_floor) blocks.push_back(winner.x + 3);
   Eigen::MatrixXd c;
   bool cov_ok = Covariance(*winner.problem, blocks, &c);
   // Inflate when the residuals scatter more than the sigmas say. With a robust loss the outliers
@@ -408,8 +543,11 @@ bool FillUncertainties(LocalFit& winner, const FitOptions& o, FitSummary& out) {
       const double u = (out.eta.value - kEtaMin) / kEtaSpan;
       out.eta.sigma = kEtaSpan * u * (1 - u) * std::sqrt(std::max(var, 0.0));
     }
+    if (p.fit_floor) {
+      const int i = o.fit_eta ? 3 : 2;
+      out.floor.sigma = p.floor_unit * std::sqrt(std::max(c(i, i) * inflate, 0.0));
+    }
   }
-
   return cov_ok;
 }
 
@@ -442,11 +580,30 @@ void Judge(bool cov_ok, FitSummary& out) {
 
 }  // namespace
 
-Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
-  if (Status s = o.Validate(); !s) return s.error();
-  if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
+namespace {
 
-  // Geometry at the starting (or fixed) eta, computed once for every sample.
+// Each sample's mode at (width, k, eta); an error names the sample whose response is broken.
+Result<std::vector<int>> DecideModes(std::span<const Sample> samples, const FitOptions& o,
+                                     ResponseCache& cache, double width, double k, double eta) {
+  std::vector<int> modes(samples.size(), 0);
+  if (!o.use_response) return modes;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    auto m = DecideMode(o.model, samples[i], i, cache, width, k, eta, o.response_tolerance);
+    if (!m.ok()) return m.error();
+    modes[i] = *m;
+  }
+  return modes;
+}
+
+double Median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+// One fit with the floor on or off (o.floor is kOff or kFit).
+Result<FitSummary> FitOnce(std::span<const Sample> samples, const FitOptions& o) {
+  const auto t0 = std::chrono::steady_clock::now();
+  // Geometry at the starting (or fixed) eta, computed once for every sample: the scan's.
   std::vector<FixedGeometry> geometry;
   geometry.reserve(samples.size());
   for (const Sample& s : samples) geometry.push_back(PrecomputeGeometry(s.light, s.view, o.eta));
@@ -457,6 +614,23 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
                  "the model is zero at every sample for every width tried: are the light and "
                  "view directions a transmission geometry the model can reach?"};
 
+  // The samples' models, decided at the best start; every set stays alive while a problem that
+  // was built on it may be the winner's.
+  ResponseCache cache(samples.size());
+  auto modes = DecideModes(samples, o, cache, starts[0].width, starts[0].k, o.eta);
+  if (!modes.ok()) return modes.error();
+  std::vector<std::unique_ptr<std::vector<SampleModel>>> model_sets;
+  auto build = [&](const std::vector<int>& m, double eta) {
+    auto set = std::make_unique<std::vector<SampleModel>>();
+    for (std::size_t i = 0; i < samples.size(); ++i)
+      set->push_back(BuildModel(samples[i], i, cache, m[i], eta));
+    model_sets.push_back(std::move(set));
+    return std::span<const SampleModel>(*model_sets.back());
+  };
+  std::vector<double> sigmas;
+  for (const Sample& s : samples) sigmas.push_back(s.sigma);
+  Problem p{samples, build(*modes, o.eta), o.floor == Floor::kFit, Median(sigmas)};
+
   // Local fits: the caller's start and the half-width estimate always run, then the best scan
   // minima, up to max_local_fits (plus those first two).
   const std::size_t n_fits = std::min(
@@ -466,7 +640,7 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   FitSummary out;
   out.model = o.model;
   for (std::size_t k = 0; k < n_fits; ++k) {
-    std::unique_ptr<LocalFit> f = SolveFrom(samples, geometry, o, starts[k].width, starts[k].k);
+    std::unique_ptr<LocalFit> f = SolveFrom(p, o, starts[k].width, starts[k].k, o.eta, 0);
     ++out.local_fits;
     if (f->converged && (!winner || f->cost < winner->cost))
       winner = std::move(f);
@@ -480,17 +654,81 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
     out.message = "no start converged: " + first_failure;
     return out;
   }
+  // The response where it matters at the solution, until the decision settles.
+  out.response.rounds = 1;
+  for (int round = 0; round < 4; ++round) {
+    const double w = std::exp(winner->x[0]), k = std::exp(winner->x[1]);
+    const double eta = o.fit_eta ? EtaFromRaw(winner->x[2]) : o.eta;
+    auto next = DecideModes(samples, o, cache, w, k, eta);
+    if (!next.ok()) return next.error();
+    if (*next == *modes) break;
+    modes = std::move(next);
+    p.models = build(*modes, o.eta);
+    auto f = SolveFrom(p, o, w, k, eta, winner->x[3] * p.floor_unit);
+    ++out.response.rounds;
+    if (!f->converged) {
+      out.status = FitStatus::kFailed;
+      out.message = "the fit with the instrument response did not converge: " + f->message;
+      return out;
+    }
+    winner = std::move(f);
+  }
   const LocalFit& best = *winner;
 
   out.width.value = std::exp(best.x[0]);
   out.scale.value = std::exp(best.x[1]);
   out.eta.value = o.fit_eta ? EtaFromRaw(best.x[2]) : o.eta;
+  out.floor.value = p.fit_floor ? best.x[3] * p.floor_unit : 0;
+  out.floor_fitted = p.fit_floor;
   out.alpha_equivalent = AlphaEquivalent(o.model.family, out.width.value);
   out.iterations = best.iterations;
-  FillStatistics(samples, geometry, o, out);
-  const bool cov_ok = FillUncertainties(*winner, o, out);
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    out.response.samples_with_response += samples[i].response.has_value();
+    out.response.rectangle += (*modes)[i] >= 1;
+    out.response.apertures += (*modes)[i] == 2;
+    out.response.rays += static_cast<long>(p.models[i].g.size());
+  }
+  FillStatistics(p, o, out);
+  const bool cov_ok = FillUncertainties(*winner, p, o, out);
   Judge(cov_ok, out);
+  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
+}
+
+}  // namespace
+
+Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
+  if (Status s = o.Validate(); !s) return s.error();
+  if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
+  if (o.floor != Floor::kAuto) return FitOnce(samples, o);
+  // The floor only when the data need it: BIC with it lower by more than 2.
+  FitOptions off = o, on = o;
+  off.floor = Floor::kOff;
+  on.floor = Floor::kFit;
+  auto without = FitOnce(samples, off);
+  if (!without.ok()) return without;
+  if (static_cast<int>(samples.size()) < on.NumParams() + 1) {
+    without->floor_choice = "no floor: too few samples to fit one";
+    return without;
+  }
+  auto with = FitOnce(samples, on);
+  if (!with.ok()) return with;
+  const double seconds = without->seconds + with->seconds;
+  std::ostringstream why;
+  FitSummary* chosen = &*without;
+  if (with->status != FitStatus::kFailed &&
+      (without->status == FitStatus::kFailed || with->bic < without->bic - 2)) {
+    chosen = &*with;
+    why << "floor kept: BIC lower by " << without->bic - with->bic << " with it";
+  } else if (with->status == FitStatus::kFailed) {
+    why << "no floor: the fit with one failed";
+  } else {
+    why << "no floor: BIC lower by only " << without->bic - with->bic
+        << " with it (more than 2 needed)";
+  }
+  chosen->floor_choice = why.str();
+  chosen->seconds = seconds;
+  return std::move(*chosen);
 }
 
 // ---- Comparing models ----------------------------------------------------------------------

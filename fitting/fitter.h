@@ -33,6 +33,10 @@
 namespace gonio::fitting {
 
 enum class Loss { kNone, kHuber, kCauchy };
+// A constant floor b added to the model, S = k f cos + b: the stray light no background
+// measurement removed. kAuto fits with and without it and keeps it only when BIC prefers it by
+// more than 2 (positive evidence, Kass & Raftery 1995): "a floor the data need".
+enum class Floor { kOff, kFit, kAuto };
 enum class Derivatives { kAutomatic, kNumeric };
 
 struct FitOptions {
@@ -51,10 +55,17 @@ struct FitOptions {
   int max_iterations = 200;
   Derivatives derivatives = Derivatives::kAutomatic;
   bool inflate_by_reduced_chi2 = true;
+  Floor floor = Floor::kOff;
+  // Samples that carry an instrument response (response.h) are modelled by it (eq. R1) where it
+  // changes the prediction by more than this fraction of the sample's sigma at the current
+  // estimate; the decision is per sample and taken again at each solution until it settles.
+  // The apertures are added the same way, on top of the rectangle. false: the point model for all.
+  bool use_response = true;
+  double response_tolerance = 0.1;
 
   // Valid options, or an InvalidArgument naming the bad field.
   Status Validate() const;
-  int NumParams() const { return fit_eta ? 3 : 2; }
+  int NumParams() const { return (fit_eta ? 3 : 2) + (floor == Floor::kFit ? 1 : 0); }
 };
 
 enum class FitStatus {
@@ -71,6 +82,15 @@ struct Parameter {
   double sigma = 0;  // 1-sigma; 0 for a fixed parameter
 };
 
+// How the instrument response entered a fit (FitOptions::use_response).
+struct ResponseUse {
+  int samples_with_response = 0;  // samples that carry one
+  int rectangle = 0;              // modelled by the rectangle's rays (eq. R1)
+  int apertures = 0;              // of which also over the source and lens cones
+  long rays = 0;                  // model evaluations per pass over the samples
+  int rounds = 0;                 // solves until the per-sample decision settled
+};
+
 struct FitSummary {
   ModelSpec model;
   FitStatus status = FitStatus::kFailed;
@@ -79,6 +99,11 @@ struct FitSummary {
   Parameter width;  // in the family's unit (WidthName)
   Parameter scale;  // k
   Parameter eta;    // sigma 0 unless fitted
+  Parameter floor;  // the constant floor b (value units); 0 +- 0 unless fitted
+  bool floor_fitted = false;
+  std::string floor_choice;  // with Floor::kAuto: why it was kept or left out
+  ResponseUse response;
+  double seconds = 0;  // wall time of the fit
   double alpha_equivalent = 0;
 
   int n_points = 0;
@@ -100,7 +125,8 @@ struct FitSummary {
 // sample); the solver's own failures are a FitSummary with status kFailed, not an error.
 Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& options);
 
-// The fitted model's prediction of each sample's value.
+// The fitted model's prediction of a sample's value: through the sample's response where the fit
+// would use it (FitOptions' default tolerance), plus the floor.
 double Predict(const FitSummary& fit, const Sample& s);
 
 // Half-width at half maximum of the lobe, turned into an alpha-equivalent start (or nullopt when

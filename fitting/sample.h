@@ -1,12 +1,14 @@
 // One measured sample of the bench, and the checks every sample set passes before a fit.
 #pragma once
 
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "common/result.h"
 #include "fitting/optics/vecmath.h"
+#include "fitting/response.h"
 
 namespace gonio::fitting {
 
@@ -17,6 +19,9 @@ struct Sample {
   double value = 0;            // S in any consistent unit (e.g. dark-subtracted counts per second)
   double sigma = 0;            // 1-sigma uncertainty of value, same unit, > 0
   int line = 0;                // where it came from (file line), 0 when not from a file
+  // The instrument response (response.h), when the sample came from a run of a bench whose
+  // geometry is known; absent for synthetic or bare CSV samples (the point model then).
+  std::optional<PointResponse> response;
 };
 
 // The bench's angles, in degrees: the light at theta_l from +n (air side) at azimuth phi_l; the

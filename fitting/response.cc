@@ -1,0 +1,296 @@
+#include "fitting/response.h"
+
+#include <algorithm>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <optional>
+
+#include "fitting/optics/fresnel.h"
+
+namespace gonio::fitting {
+namespace {
+
+using V = optics::Vec3<double>;
+constexpr double kDeg = optics::kPi / 180;
+
+bool PositiveFinite(double x) { return std::isfinite(x) && x > 0; }
+
+V InPlane(double polar_rad) { return {std::sin(polar_rad), 0, std::cos(polar_rad)}; }
+
+// The sample turned by phi about its normal sees lab-fixed vectors turned by -phi.
+V TurnByMinus(const V& w, double phi_rad) {
+  const double c = std::cos(phi_rad), s = std::sin(phi_rad);
+  return {c * w.x + s * w.y, -s * w.x + c * w.y, w.z};
+}
+
+// Snell's law in vector form: d travels toward a surface with unit normal n facing it
+// (Dot(d, n) < 0), from index 1 into index eta. Total reflection cannot occur entering glass.
+V RefractInto(const V& d, const V& n, double eta) {
+  const double cos_i = -Dot(d, n);
+  const double sin2_t = (1 - cos_i * cos_i) / (eta * eta);
+  const double cos_t = std::sqrt(std::max(0.0, 1 - sin2_t));
+  return Normalize(d / eta + n * (cos_i / eta - cos_t));
+}
+
+struct Traced {
+  V l, v;
+  double weight;
+};
+
+// One ray from the pinhole through the object-plane point (x, y) mm.
+std::optional<Traced> TraceOne(const ResponseSetup& s, const V& source_dir, const V& camera_dir,
+                               double phi, double x_mm, double y_mm) {
+  const BenchOptics& b = s.bench;
+  const V origin{0, 0, -(s.thickness_mm - b.centred_thickness_mm)};
+  const V across{camera_dir.z, 0, -camera_dir.x};
+  const V up{0, 1, 0};
+  const V pinhole = origin + camera_dir * b.camera_distance_mm;
+  const V d = Normalize(origin + across * x_mm + up * y_mm - pinhole);
+  // The first intersection with the sphere |p - O| = R from the pinhole.
+  const V oc = pinhole - origin;
+  const double half_b = Dot(oc, d);
+  const double disc =
+      half_b * half_b - (LengthSquared(oc) - b.sphere_radius_mm * b.sphere_radius_mm);
+  if (disc <= 0) return std::nullopt;
+  const V at_sphere = pinhole + d * (-half_b - std::sqrt(disc));
+  if (at_sphere.z > -s.thickness_mm) return std::nullopt;  // the plate's side, not the lens
+  const V n = (at_sphere - origin) / b.sphere_radius_mm;
+  const double cos_i = -Dot(d, n);
+  if (cos_i <= 0) return std::nullopt;
+  const V in_glass = RefractInto(d, n, b.lens_eta);
+  if (in_glass.z <= 0) return std::nullopt;
+  const V hit = at_sphere + in_glass * (-at_sphere.z / in_glass.z);
+  if (std::abs(hit.x) > b.plate_half_width_mm || std::abs(hit.y) > b.plate_half_width_mm)
+    return std::nullopt;
+  const V source = origin + source_dir * b.source_distance_mm;
+  const double dist = Length(source - hit);
+  const double transmitted = (1 - optics::FresnelDielectric(cos_i, b.lens_eta)) /
+                             (1 - optics::FresnelDielectric(1.0, b.lens_eta));
+  const double inv_square = optics::Sqr(b.source_distance_mm / dist);
+  return Traced{TurnByMinus((source - hit) / dist, phi), TurnByMinus(-in_glass, phi),
+                transmitted * inv_square};
+}
+
+// An orthonormal pair perpendicular to the unit vector w.
+void Basis(const V& w, V* a, V* b) {
+  const V t = std::abs(w.x) < 0.9 ? V{1, 0, 0} : V{0, 1, 0};
+  *a = Normalize(Cross(w, t));
+  *b = Cross(w, *a);
+}
+
+// Equal-area rings of directions in the cone of half-angle `half` around w.
+std::vector<V> Cone(const V& w, double half, int rings, int per_ring) {
+  V a, b;
+  Basis(w, &a, &b);
+  std::vector<V> out;
+  for (int i = 0; i < rings; ++i) {
+    const double theta = half * std::sqrt((i + 0.5) / rings);
+    for (int j = 0; j < per_ring; ++j) {
+      const double phi = 2 * optics::kPi * (j + 0.5 * (i % 2)) / per_ring;
+      out.push_back(Normalize(w * std::cos(theta) +
+                              (a * std::cos(phi) + b * std::sin(phi)) * std::sin(theta)));
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+double ConeHalfAngle(double solid_angle_sr) {
+  return std::acos(std::clamp(1 - solid_angle_sr / (2 * optics::kPi), -1.0, 1.0));
+}
+
+Status BenchOptics::Validate() const {
+  const std::pair<const char*, double> lengths[] = {
+      {"source_distance_mm", source_distance_mm},   {"camera_distance_mm", camera_distance_mm},
+      {"sphere_radius_mm", sphere_radius_mm},       {"centred_thickness_mm", centred_thickness_mm},
+      {"plate_half_width_mm", plate_half_width_mm}, {"mm_per_pixel", mm_per_pixel}};
+  for (const auto& [name, value] : lengths)
+    if (!PositiveFinite(value))
+      return InvalidArgument(std::string("bench.") + name + " must be a finite number > 0");
+  if (!(lens_eta > 1 && lens_eta < 3)) return InvalidArgument("bench.lens_eta must lie in (1, 3)");
+  if (sensor_width < 1 || sensor_height < 1)
+    return InvalidArgument("bench.sensor_width and sensor_height must be >= 1");
+  if (!(std::isfinite(source_sr) && source_sr >= 0 && source_sr < 1) ||
+      !(std::isfinite(receiver_sr) && receiver_sr >= 0 && receiver_sr < 1))
+    return InvalidArgument("bench.source_sr and receiver_sr must lie in [0, 1) sr");
+  if (!(camera_distance_mm > sphere_radius_mm && source_distance_mm > sphere_radius_mm))
+    return InvalidArgument("bench: the source and the camera must lie outside the lens's sphere");
+  return OkStatus();
+}
+
+Status ResponseSetup::Validate() const {
+  if (Status s = bench.Validate(); !s.ok()) return s;
+  if (!PositiveFinite(thickness_mm)) return InvalidArgument("thickness_mm must be > 0");
+  const SensorRectangle& r = rectangle;
+  if (r.binning_h < 1 || r.binning_v < 1) return InvalidArgument("rectangle: binning must be >= 1");
+  if (r.x < 0 || r.y < 0 || r.width < 1 || r.height < 1 || r.offset_x < 0 || r.offset_y < 0)
+    return InvalidArgument("rectangle: x, y, offsets must be >= 0 and width, height >= 1");
+  const long right = r.offset_x + static_cast<long>(r.x + r.width) * r.binning_h;
+  const long bottom = r.offset_y + static_cast<long>(r.y + r.height) * r.binning_v;
+  if (right > bench.sensor_width || bottom > bench.sensor_height)
+    return InvalidArgument("rectangle: it reaches beyond the " +
+                           std::to_string(bench.sensor_width) + " x " +
+                           std::to_string(bench.sensor_height) + " sensor");
+  return OkStatus();
+}
+
+std::string ResponseSetup::ToJson() const {
+  const BenchOptics& b = bench;
+  const SensorRectangle& r = rectangle;
+  nlohmann::json j{{"bench",
+                    {{"source_distance_mm", b.source_distance_mm},
+                     {"camera_distance_mm", b.camera_distance_mm},
+                     {"sphere_radius_mm", b.sphere_radius_mm},
+                     {"lens_eta", b.lens_eta},
+                     {"centred_thickness_mm", b.centred_thickness_mm},
+                     {"plate_half_width_mm", b.plate_half_width_mm},
+                     {"mm_per_pixel", b.mm_per_pixel},
+                     {"sensor_width", b.sensor_width},
+                     {"sensor_height", b.sensor_height},
+                     {"source_sr", b.source_sr},
+                     {"receiver_sr", b.receiver_sr}}},
+                   {"rectangle",
+                    {{"offset_x", r.offset_x},
+                     {"offset_y", r.offset_y},
+                     {"binning_h", r.binning_h},
+                     {"binning_v", r.binning_v},
+                     {"x", r.x},
+                     {"y", r.y},
+                     {"width", r.width},
+                     {"height", r.height}}},
+                   {"thickness_mm", thickness_mm}};
+  return j.dump();
+}
+
+Result<ResponseSetup> ResponseSetup::FromJson(const std::string& text) {
+  const nlohmann::json j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
+  if (j.is_discarded() || !j.is_object()) return InvalidArgument("response: not a JSON object");
+  ResponseSetup s;
+  std::string missing;
+  auto number = [&](const nlohmann::json& obj, const char* table, const char* key, double* out) {
+    const auto it = obj.find(key);
+    if (it == obj.end() || !it->is_number()) {
+      if (missing.empty()) missing = std::string(table) + key;
+      return;
+    }
+    *out = it->get<double>();
+  };
+  auto integer = [&](const nlohmann::json& obj, const char* table, const char* key, int* out) {
+    const auto it = obj.find(key);
+    if (it == obj.end() || !it->is_number_integer() || it->get<long long>() < -1000000000LL ||
+        it->get<long long>() > 1000000000LL) {
+      if (missing.empty()) missing = std::string(table) + key;
+      return;
+    }
+    *out = static_cast<int>(it->get<long long>());
+  };
+  const auto bench = j.find("bench");
+  const auto rect = j.find("rectangle");
+  if (bench == j.end() || !bench->is_object()) return InvalidArgument("response: no bench object");
+  if (rect == j.end() || !rect->is_object())
+    return InvalidArgument("response: no rectangle object");
+  BenchOptics& b = s.bench;
+  number(*bench, "bench.", "source_distance_mm", &b.source_distance_mm);
+  number(*bench, "bench.", "camera_distance_mm", &b.camera_distance_mm);
+  number(*bench, "bench.", "sphere_radius_mm", &b.sphere_radius_mm);
+  number(*bench, "bench.", "lens_eta", &b.lens_eta);
+  number(*bench, "bench.", "centred_thickness_mm", &b.centred_thickness_mm);
+  number(*bench, "bench.", "plate_half_width_mm", &b.plate_half_width_mm);
+  number(*bench, "bench.", "mm_per_pixel", &b.mm_per_pixel);
+  integer(*bench, "bench.", "sensor_width", &b.sensor_width);
+  integer(*bench, "bench.", "sensor_height", &b.sensor_height);
+  number(*bench, "bench.", "source_sr", &b.source_sr);
+  number(*bench, "bench.", "receiver_sr", &b.receiver_sr);
+  SensorRectangle& r = s.rectangle;
+  integer(*rect, "rectangle.", "offset_x", &r.offset_x);
+  integer(*rect, "rectangle.", "offset_y", &r.offset_y);
+  integer(*rect, "rectangle.", "binning_h", &r.binning_h);
+  integer(*rect, "rectangle.", "binning_v", &r.binning_v);
+  integer(*rect, "rectangle.", "x", &r.x);
+  integer(*rect, "rectangle.", "y", &r.y);
+  integer(*rect, "rectangle.", "width", &r.width);
+  integer(*rect, "rectangle.", "height", &r.height);
+  number(j, "", "thickness_mm", &s.thickness_mm);
+  if (!missing.empty())
+    return InvalidArgument("response: " + missing + " is missing or not a number of its kind");
+  if (Status v = s.Validate(); !v.ok()) return InvalidArgument("response: " + v.error().message);
+  return s;
+}
+
+Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition& at,
+                                 int max_rays) {
+  if (Status v = setup.Validate(); !v.ok()) return v.error();
+  if (!(std::isfinite(at.sample_deg) && std::isfinite(at.arm_deg) && std::isfinite(at.azimuth_deg)))
+    return InvalidArgument("the stage position is not finite");
+  const double s = at.sample_deg * kDeg, phi = at.azimuth_deg * kDeg;
+  const V source_dir = InPlane(s), camera_dir = InPlane(s - at.arm_deg * kDeg);
+  if (!(camera_dir.z < 0))
+    return InvalidArgument("the camera is not on the glass side at sample " +
+                           std::to_string(at.sample_deg) + " deg, arm " +
+                           std::to_string(at.arm_deg) + " deg: no transmission response");
+  const SensorRectangle& r = setup.rectangle;
+  const BenchOptics& b = setup.bench;
+  // The rectangle in sensor pixels.
+  const int c0 = r.offset_x + r.x * r.binning_h, c1 = c0 + r.width * r.binning_h;
+  const int r0 = r.offset_y + r.y * r.binning_v, r1 = r0 + r.height * r.binning_v;
+  const long n = static_cast<long>(c1 - c0) * (r1 - r0);
+  const int block = max_rays >= 1 && n > max_rays
+                        ? static_cast<int>(std::ceil(std::sqrt(double(n) / max_rays)))
+                        : 1;
+  Response out;
+  out.pixels = static_cast<double>(n);
+  out.l0 = TurnByMinus(source_dir, phi);
+  out.v0 = TurnByMinus(camera_dir, phi);
+  out.source_half_angle = ConeHalfAngle(b.source_sr);
+  out.receiver_half_angle = ConeHalfAngle(b.receiver_sr);
+  for (int row = r0; row < r1; row += block) {
+    const int row_end = std::min(row + block, r1);
+    for (int col = c0; col < c1; col += block) {
+      const int col_end = std::min(col + block, c1);
+      // The block's centre in pixel-centre coordinates: (first + last + 1) / 2.
+      const double x = (0.5 * (col + col_end) - b.sensor_width / 2.0) * b.mm_per_pixel;
+      const double y = (0.5 * (row + row_end) - b.sensor_height / 2.0) * b.mm_per_pixel;
+      const auto t = TraceOne(setup, source_dir, camera_dir, phi, x, y);
+      if (!t || t->l.z <= 0) continue;
+      const double count = double(col_end - col) * (row_end - row);
+      out.rays.push_back({t->l, t->v, t->weight * count});
+    }
+  }
+  if (out.rays.empty())
+    return Error{ErrorCode::kFailedPrecondition,
+                 "no pixel of the rectangle sees the sample through the lens at sample " +
+                     std::to_string(at.sample_deg) + " deg, arm " + std::to_string(at.arm_deg) +
+                     " deg"};
+  return out;
+}
+
+std::vector<ResponseRay> ApertureCones(const V& l, const V& v, double weight,
+                                       double source_half_angle, double receiver_half_angle,
+                                       int rings, int per_ring) {
+  const auto ls = Cone(l, source_half_angle, rings, per_ring);
+  const auto vs = Cone(v, receiver_half_angle, rings, per_ring);
+  const double w = weight / double(ls.size() * vs.size());
+  std::vector<ResponseRay> out;
+  for (const V& a : ls)
+    if (a.z > 0)
+      for (const V& b : vs) out.push_back({a, b, w});
+  return out;
+}
+
+Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const StagePosition& at,
+                                              int rings, int per_ring, int max_base_rays) {
+  auto base = ComputeResponse(setup, at, max_base_rays);
+  if (!base.ok()) return base;
+  Response out = *base;
+  out.rays.clear();
+  out.apertures = true;
+  for (const ResponseRay& ray : base->rays) {
+    auto cones = ApertureCones(ray.l, ray.v, ray.weight, base->source_half_angle,
+                               base->receiver_half_angle, rings, per_ring);
+    out.rays.insert(out.rays.end(), cones.begin(), cones.end());
+  }
+  return out;
+}
+
+}  // namespace gonio::fitting

@@ -1,0 +1,122 @@
+// The instrument response of one measured point: the (light, view) direction pairs that the fixed
+// rectangle of the image integrates over, with their weights, computed from the bench's
+// configuration (docs/measurement.md). A stored sample is the rectangle's mean, so the model of
+// it is not k f(l0, v0) cos at the nominal pair but
+//   S = k / N sum_j w_j f(l_j, v_j) |cos theta_lj|                                         (R1)
+// over the N sensor pixels of the rectangle, each traced from the camera's pinhole through the
+// hemisphere lens to the rough surface: Snell's law at the sphere, the plate's glass path, the
+// light direction from the hit point to the source. w_j is the Fresnel transmittance at the
+// sphere relative to the pole's times the source's inverse square relative to its distance from
+// the sphere centre; a pixel whose ray misses the lens or the plate has w_j = 0 (it sees only
+// stray light, which a floor term or a measured background accounts for).
+//
+// The finite source and lens apertures widen each pair into two small cones (the source's around
+// l, the lens's around v). Averaging over them matters for narrow lobes only, so it is a separate
+// step (WithApertures) that the fitter takes where it changes the prediction.
+//
+// Conventions (the bench's, documented in docs/measurement.md and docs/scene.md):
+//   * Sample frame: the rough surface is z = 0, its normal +z toward the air and the source. The
+//     hemisphere lens's sphere centre O = (0, 0, -(thickness - centred_thickness)).
+//   * Stages: one vertical axis through O. Sample rotation s puts the source at polar angle s on
+//     the +x side; the detector arm at lab angle a puts the camera at polar angle s - a in the x-z
+//     plane; the azimuth stage turns the sample by phi about its normal (lab vectors turn by -phi).
+//   * Camera: a pinhole camera_distance from O looking at O; the sensor pixel (col, row) looks at
+//     ((col + 1/2 - W/2) p, (row + 1/2 - H/2) p) of the plane through O facing the camera, with p
+//     the object-side pixel pitch, x horizontal (in the plane of incidence) and y vertical.
+//
+// This is written from the bench's geometry, not from the simulator: the simulated scene is what
+// it is tested against (tests/fitting/response_test.cc renders the scene's rectangle).
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/result.h"
+#include "fitting/optics/vecmath.h"
+
+namespace gonio::fitting {
+
+// The bench's optics, from the instrument configuration's [bench] table.
+struct BenchOptics {
+  double source_distance_mm = 610;
+  double camera_distance_mm = 885;
+  double sphere_radius_mm = 37.5;
+  double lens_eta = 1.51;             // the hemisphere lens (and the plate: one index)
+  double centred_thickness_mm = 6.0;  // the plate thickness that puts O on the rough surface
+  double plate_half_width_mm = 50;
+  double mm_per_pixel = 0.16;  // object-side pixel pitch at O
+  int sensor_width = 512, sensor_height = 512;
+  double source_sr = 0.000076;    // the fibre end's solid angle at the sample
+  double receiver_sr = 0.000039;  // the lens aperture's at the sample
+
+  Status Validate() const;  // positive, finite lengths; sensor size; apertures >= 0
+};
+
+// Where a plan's rectangle lies on the sensor: output pixels of the camera's region.
+struct SensorRectangle {
+  int offset_x = 0, offset_y = 0;           // the region's origin, sensor pixels
+  int binning_h = 1, binning_v = 1;         // sensor pixels per output pixel
+  int x = 0, y = 0, width = 1, height = 1;  // the rectangle, output pixels of the region
+};
+
+// Everything a run needs to rebuild each point's response: stored with the run (as JSON).
+struct ResponseSetup {
+  BenchOptics bench;
+  SensorRectangle rectangle;
+  double thickness_mm = 6.0;  // the specimen's
+
+  Status Validate() const;  // the bench's, and the rectangle inside the sensor
+  std::string ToJson() const;
+  // Errors name the field that is missing or wrong ("response: bench.mm_per_pixel: ...").
+  static Result<ResponseSetup> FromJson(const std::string& text);
+};
+
+// The stage positions a point was measured at (read back), degrees.
+struct StagePosition {
+  double sample_deg = 0, arm_deg = 180, azimuth_deg = 0;
+};
+
+struct ResponseRay {
+  optics::Vec3<double> l, v;  // sample frame: l toward the source, v toward the camera (glass)
+  double weight = 0;          // w_j of (R1), > 0
+};
+
+struct Response {
+  std::vector<ResponseRay> rays;  // the rays that reach the surface (w > 0)
+  double pixels = 0;              // N of (R1): every pixel of the rectangle, dark ones included
+  optics::Vec3<double> l0, v0;    // the nominal pair: the central ray through O
+  double source_half_angle = 0, receiver_half_angle = 0;  // radians (WithApertures)
+  bool apertures = false;  // whether the rays already carry the aperture cones
+};
+
+// The response of a transmission point (the camera on the glass side). Errors: an invalid setup,
+// a camera on the air side, or a rectangle none of whose pixels reaches the surface.
+// `max_rays` bounds the rays: a larger rectangle is traced at the centres of blocks of pixels,
+// each block's ray weighted by its pixel count (the signal is smooth on the scale of a block).
+Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition& at,
+                                 int max_rays = 256);
+
+// The response with every pair spread over the source and lens cones: the rectangle traced with
+// at most `max_base_rays` rays, then each ray turned into rings x per_ring directions in each
+// cone (equal-area rings, the product of the two), its weight divided evenly among them.
+Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const StagePosition& at,
+                                              int rings = 3, int per_ring = 6,
+                                              int max_base_rays = 16);
+
+// One pair spread over the two cones (what ComputeResponseWithApertures does to each ray): the
+// product of the cones' directions, `weight` divided evenly; directions below the horizon dropped.
+std::vector<ResponseRay> ApertureCones(const optics::Vec3<double>& l, const optics::Vec3<double>& v,
+                                       double weight, double source_half_angle,
+                                       double receiver_half_angle, int rings = 3, int per_ring = 6);
+
+// What a sample carries to rebuild its response: its run's setup (shared) and its stage position.
+struct PointResponse {
+  std::shared_ptr<const ResponseSetup> setup;
+  StagePosition at;
+};
+
+// Relative solid angle -> half-angle of a cone: omega = 2 pi (1 - cos theta).
+double ConeHalfAngle(double solid_angle_sr);
+
+}  // namespace gonio::fitting

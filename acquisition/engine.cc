@@ -189,16 +189,17 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   const DarkRecord* dark = e.dark;
   double norm = 1, monitor_rel_var = 0;
   if (monitor_ != nullptr) {
-    double sum = 0, sum2 = 0;
-    for (double w : e.monitor) sum += w, sum2 += w * w;
+    double sum = 0;
+    for (double w : e.monitor) sum += w;
     const double n = static_cast<double>(e.monitor.size());
     m.monitor_w = sum / n;
     if (!(*m.monitor_w > 0))
       return Error{ErrorCode::kDeviceFault,
                    "source monitor reads " + std::to_string(*m.monitor_w) + " W: lamp off?"};
-    // The variance of the readings' mean, relative: (sum2/n - mean^2) / (n - 1) / mean^2.
-    monitor_rel_var =
-        std::max(0.0, sum2 / n - (sum / n) * (sum / n)) / (n - 1) / (*m.monitor_w * *m.monitor_w);
+    // One reading's relative variance, pooled over the run; the mean's is that over n.
+    for (double w : e.monitor) monitor_pool_.sum2 += std::pow(w / *m.monitor_w - 1, 2);
+    monitor_pool_.dof += n - 1;
+    monitor_rel_var = monitor_pool_.Variance() / n;
     if (!monitor_reference_) {  // kept for the record: the run's first reading
       monitor_reference_ = *m.monitor_w;
       if (Status s = db_.SetMonitorReference(run_, *monitor_reference_); !s.ok()) return s.error();
@@ -217,7 +218,20 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   m.value = (m.rect_mean - dark->mean) / t / norm;
   const double var_mean = m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) +
                           dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames));
-  m.sigma = std::sqrt(var_mean / (t * norm * t * norm) + m.value * m.value * monitor_rel_var);
+  m.sigma_stat = std::sqrt(var_mean) / (t * norm);
+  m.sigma_monitor = std::abs(m.value) * std::sqrt(monitor_rel_var);
+  // The lamp between frames: each frame's mean scatters by its pixels' noise / P and by what all
+  // pixels share; the excess over the first, relative to the signal, pooled by exposure.
+  const double signal = m.rect_mean - dark->mean;
+  if (m.frames >= 2 && std::abs(signal) > 0) {
+    Pool& pool = lamp_pools_[static_cast<std::int64_t>(std::llround(t * 1e6))];
+    const double excess = acc.FrameMeansSd() * acc.FrameMeansSd() - m.pixel_var / m.rect_pixels;
+    pool.sum2 += (m.frames - 1) * excess / (signal * signal);
+    pool.dof += m.frames - 1;
+    m.sigma_lamp = std::abs(m.value) * std::sqrt(pool.Variance() / m.frames);
+  }
+  m.sigma = std::sqrt(m.sigma_stat * m.sigma_stat + m.sigma_lamp * m.sigma_lamp +
+                      m.sigma_monitor * m.sigma_monitor);
   return m;
 }
 

@@ -14,9 +14,16 @@
 //
 // Stored value: (rectangle mean - dark mean) / exposure, in counts per second, divided by the
 // monitor's mean reading in mW when there is a monitor (so runs on different days compare),
-// proportional to BTDF * cos(theta_l) (docs/reference.md section 1). Its sigma comes from the
-// pooled per-pixel variance of the frames and of the dark, and the spread of the monitor's
-// readings.
+// proportional to BTDF * cos(theta_l) (docs/reference.md section 1). Its sigma is a budget of
+// three components, stored apart (docs/measurement.md):
+//   stat     shot, read and dark noise: the pooled per-pixel variance of the frames and the dark;
+//   lamp     the lamp's fluctuation between the point's frames, which every pixel shares (so it
+//            does not average over the rectangle): the frames' means' spread beyond their
+//            pixels' noise, pooled over the run's points of the same exposure;
+//   monitor  the normalisation: the spread of single monitor readings, pooled over the run, over
+//            the point's number of readings.
+// Pooling matters: a variance estimated from a point's own 4 or 5 readings has 3 or 4 degrees of
+// freedom, and pulls normalised by it scatter 1.4 times wider than normal (Student's t).
 #pragma once
 
 #include <atomic>
@@ -106,6 +113,13 @@ class Engine {
   std::optional<double> monitor_reference_;
   double last_exposure_s_ = 0;
   std::map<std::int64_t, DarkRecord> darks_;  // by exposure in microseconds
+  // Pooled relative variances (sum of squares and degrees of freedom) for the budget.
+  struct Pool {
+    double sum2 = 0, dof = 0;
+    double Variance() const { return dof > 0 ? std::max(0.0, sum2 / dof) : 0.0; }
+  };
+  Pool monitor_pool_;                        // of one monitor reading
+  std::map<std::int64_t, Pool> lamp_pools_;  // of one frame's common mode, by exposure (us)
   EngineStats stats_;
 };
 

@@ -78,6 +78,15 @@ CREATE INDEX jobs_by_state ON jobs(state, position);
 ALTER TABLE plan_points ADD COLUMN side TEXT NOT NULL DEFAULT 'transmission'
   CHECK(side IN ('transmission','reflection'));
 )sql",
+    // 4: the measurement equation (#16): what rebuilds each point's instrument response (JSON,
+    // fitting/response.h; NULL for runs of a bench without [bench]), and each point's
+    // uncertainty budget by component (NULL for points stored before).
+    R"sql(
+ALTER TABLE runs ADD COLUMN response TEXT;
+ALTER TABLE measurements ADD COLUMN sigma_stat REAL;
+ALTER TABLE measurements ADD COLUMN sigma_lamp REAL;
+ALTER TABLE measurements ADD COLUMN sigma_monitor REAL;
+)sql",
 };
 constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
 static_assert(kMigrationCount == kSchemaVersion);
@@ -166,15 +175,22 @@ Result<std::int64_t> Storage::StoreConfig(const std::string& text) {
 
 Result<std::int64_t> Storage::CreateRun(std::int64_t specimen_id, std::int64_t config_id,
                                         const std::string& plan_text,
-                                        const std::vector<PlannedPoint>& points) {
+                                        const std::vector<PlannedPoint>& points,
+                                        const std::string& response) {
   std::lock_guard guard(mu_);
   if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s.error();
   auto fail = [&](const Error& e) {
     (void)Exec("ROLLBACK");
     return e;
   };
-  Stmt run(db_, "INSERT INTO runs(specimen_id, config_id, plan, status) VALUES(?,?,?,'planned')");
+  Stmt run(db_,
+           "INSERT INTO runs(specimen_id, config_id, plan, status, response) "
+           "VALUES(?,?,?,'planned',?)");
   run.Bind(1, specimen_id).Bind(2, config_id).Bind(3, plan_text);
+  if (response.empty())
+    run.Bind(4, std::optional<double>());  // NULL: no response
+  else
+    run.Bind(4, response);
   if (run.Step() != SQLITE_DONE) return fail(run.Fail("creating the run"));
   const std::int64_t id = sqlite3_last_insert_rowid(db_);
   for (const PlannedPoint& p : points) {
@@ -192,12 +208,13 @@ Result<std::int64_t> Storage::CreateRun(std::int64_t specimen_id, std::int64_t c
 }
 
 Result<std::int64_t> Storage::NewRun(const Plan& plan, const std::string& config_text,
-                                     const std::vector<PlannedPoint>& points) {
+                                     const std::vector<PlannedPoint>& points,
+                                     const std::string& response) {
   auto specimen = EnsureSpecimen(plan.specimen);
   if (!specimen.ok()) return specimen.error();
   auto config = StoreConfig(config_text);
   if (!config.ok()) return config.error();
-  return CreateRun(*specimen, *config, plan.text, points);
+  return CreateRun(*specimen, *config, plan.text, points, response);
 }
 
 const char* ToString(RunStatus s) {
@@ -269,7 +286,8 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
          "SELECT r.id, s.name, r.status, r.monitor_reference_w, r.plan, "
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id), "
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='done'), "
-         "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='skipped'), s.eta "
+         "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='skipped'), s.eta, "
+         "r.response "
          "FROM runs r JOIN specimens s ON s.id=r.specimen_id WHERE r.id=?");
   q.Bind(1, run);
   if (q.Step() != SQLITE_ROW)
@@ -289,6 +307,7 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
   i.points_done = static_cast<int>(q.I(6));
   i.points_skipped = static_cast<int>(q.I(7));
   i.specimen_eta = q.D(8);
+  if (!q.Null(9)) i.response = q.T(9);
   return i;
 }
 
@@ -357,8 +376,8 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
   Stmt i(db_,
          "INSERT INTO measurements(run_id, idx, sample_read_deg, arm_read_deg, azimuth_read_deg, "
          "exposure_s, frames, temperature_c, monitor_w, rect_mean, rect_sd, pixel_var, "
-         "rect_pixels, rect_saturated, dark_id, value, sigma, flags, ranging_tries) "
-         "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
+         "rect_pixels, rect_saturated, dark_id, value, sigma, flags, ranging_tries, sigma_stat, "
+         "sigma_lamp, sigma_monitor) VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
   i.Bind(1, run).Bind(2, m.index).Bind(3, m.sample_read_deg).Bind(4, m.arm_read_deg);
   i.Bind(5, m.azimuth_read_deg).Bind(6, m.exposure_s).Bind(7, m.frames).Bind(8, m.temperature_c);
   i.Bind(9, m.monitor_w).Bind(10, m.rect_mean).Bind(11, m.rect_sd).Bind(12, m.pixel_var);
@@ -370,6 +389,7 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
   }
   i.Bind(16, m.value);
   i.Bind(17, m.sigma).Bind(18, m.flags).Bind(19, m.ranging_tries);
+  i.Bind(20, m.sigma_stat).Bind(21, m.sigma_lamp).Bind(22, m.sigma_monitor);
   if (i.Step() != SQLITE_DONE)
     return fail(
         i.Fail("storing point " + std::to_string(m.index) + " of run " + std::to_string(run)));
@@ -389,7 +409,7 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
          "p.azimuth_deg, m.sample_read_deg, m.arm_read_deg, m.azimuth_read_deg, m.exposure_s, "
          "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
          "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries, "
-         "p.side FROM measurements m JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
+         "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor FROM measurements m JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
          "WHERE m.run_id=? ORDER BY p.idx");
   q.Bind(1, run);
   std::vector<MeasurementRow> out;
@@ -419,6 +439,10 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
     r.m.flags = static_cast<int>(q.I(22));
     r.m.ranging_tries = static_cast<int>(q.I(23));
     r.point.reflection = q.T(24) == "reflection";
+    // Points stored before the budget (schema 4) have their sigma as the statistical part.
+    r.m.sigma_stat = q.Null(25) ? r.m.sigma : q.D(25);
+    r.m.sigma_lamp = q.Null(26) ? 0 : q.D(26);
+    r.m.sigma_monitor = q.Null(27) ? 0 : q.D(27);
     out.push_back(r);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading measurements");
@@ -491,16 +515,23 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
   std::lock_guard guard(mu_);
   auto rows = Measurements(run);
   if (!rows.ok()) return rows.error();
-  out << "# run " << run << ": dark-subtracted, monitor-normalised counts per second\n"
-      << "theta_l_deg,theta_v_deg,phi_l_deg,phi_v_deg,value,sigma,exposure_s,frames,"
-         "rect_mean_adu,temperature_c,monitor_w,flags,side\n";
+  auto info = GetRun(run);
+  if (!info.ok()) return info.error();
+  out << "# run " << run << ": dark-subtracted, monitor-normalised counts per second\n";
+  // The instrument response's setup (fitting/samples_csv.h reads it back with the stage columns).
+  if (info->response) out << "# response: " << *info->response << "\n";
+  out << "theta_l_deg,theta_v_deg,phi_l_deg,phi_v_deg,value,sigma,exposure_s,frames,"
+         "rect_mean_adu,temperature_c,monitor_w,flags,side,sample_read_deg,arm_read_deg,"
+         "azimuth_read_deg,sigma_stat,sigma_lamp,sigma_monitor\n";
   out.precision(9);
   for (const MeasurementRow& r : *rows) {
     out << r.point.theta_l_deg << "," << r.point.theta_v_deg << "," << r.point.phi_deg << ","
         << r.point.phi_deg << "," << r.m.value << "," << r.m.sigma << "," << r.m.exposure_s << ","
         << r.m.frames << "," << r.m.rect_mean << "," << r.m.temperature_c << ","
         << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << ","
-        << (r.point.reflection ? "reflection" : "transmission") << "\n";
+        << (r.point.reflection ? "reflection" : "transmission") << "," << r.m.sample_read_deg
+        << "," << r.m.arm_read_deg << "," << r.m.azimuth_read_deg << "," << r.m.sigma_stat << ","
+        << r.m.sigma_lamp << "," << r.m.sigma_monitor << "\n";
   }
   return OkStatus();
 }

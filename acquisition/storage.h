@@ -21,7 +21,7 @@ struct sqlite3;
 
 namespace gonio::acquisition {
 
-inline constexpr int kSchemaVersion = 3;
+inline constexpr int kSchemaVersion = 4;
 
 // A run's status, stored as text ("planned", "running", ...) and turned into a string only where
 // it is stored or sent.
@@ -41,6 +41,9 @@ struct RunInfo {
   int points_total = 0, points_done = 0, points_skipped = 0;
   std::optional<double> monitor_reference_w;
   std::string plan_text;
+  // What rebuilds each point's instrument response (fitting::ResponseSetup as JSON), when the
+  // bench's geometry was configured.
+  std::optional<std::string> response;
 };
 
 // What happened to a run besides its points: pauses, suspensions, faults, aborts.
@@ -75,6 +78,9 @@ struct Measurement {
   int rect_pixels = 0, rect_saturated = 0;
   std::int64_t dark_id = 0;
   double value = 0, sigma = 0;  // dark-subtracted, normalised counts per second
+  // sigma's components, added in quadrature (docs/measurement.md): shot, read and dark noise;
+  // the lamp's fluctuation between the point's frames; the monitor normalisation.
+  double sigma_stat = 0, sigma_lamp = 0, sigma_monitor = 0;
   int flags = 0;                // kFlag*
   int ranging_tries = 0;
 };
@@ -101,11 +107,15 @@ class Storage {
   Result<std::int64_t> StoreConfig(const std::string& text);
   Result<std::int64_t> CreateRun(std::int64_t specimen_id, std::int64_t config_id,
                                  const std::string& plan_text,
-                                 const std::vector<PlannedPoint>& points);
+                                 const std::vector<PlannedPoint>& points,
+                                 const std::string& response = "");
   // A new run of a plan, as every program starts one: its specimen (stored once), the
   // instrument config's text (once per distinct content), and its points; the run's id.
+  // `response` (may be empty): what rebuilds each point's instrument response, as JSON
+  // (fitting::ResponseSetup).
   Result<std::int64_t> NewRun(const Plan& plan, const std::string& config_text,
-                              const std::vector<PlannedPoint>& points);
+                              const std::vector<PlannedPoint>& points,
+                              const std::string& response = "");
   Status SetRunStatus(std::int64_t run, RunStatus status);
   Status SetMonitorReference(std::int64_t run, double watts);
   Status AddEvent(std::int64_t run, const std::string& kind, const std::string& detail);

@@ -182,6 +182,27 @@ Status ReadMonitor(Reader& r, const toml::table& t, MonitorConfig& m) {
   return OkStatus();
 }
 
+// [bench]: the optics' geometry (docs/measurement.md).
+Status ReadBench(Reader& r, const toml::table& t, fitting::BenchOptics& b) {
+  GONIO_TRY(r.Keys(t, "bench",
+                   {"source_distance_mm", "camera_distance_mm", "sphere_radius_mm", "lens_eta",
+                    "centred_thickness_mm", "plate_half_width_mm", "mm_per_pixel", "sensor_width",
+                    "sensor_height", "source_sr", "receiver_sr"}));
+  GONIO_TRY(r.Number(t, "source_distance_mm", &b.source_distance_mm, 1, 1e5));
+  GONIO_TRY(r.Number(t, "camera_distance_mm", &b.camera_distance_mm, 1, 1e5));
+  GONIO_TRY(r.Number(t, "sphere_radius_mm", &b.sphere_radius_mm, 1, 1e4));
+  GONIO_TRY(r.Number(t, "lens_eta", &b.lens_eta, 1.0001, 2.9999));
+  GONIO_TRY(r.Number(t, "centred_thickness_mm", &b.centred_thickness_mm, 0.01, 1000));
+  GONIO_TRY(r.Number(t, "plate_half_width_mm", &b.plate_half_width_mm, 0.01, 1e4));
+  GONIO_TRY(r.Number(t, "mm_per_pixel", &b.mm_per_pixel, 1e-6, 100));
+  GONIO_TRY(r.Integer(t, "sensor_width", &b.sensor_width, 1, 100000));
+  GONIO_TRY(r.Integer(t, "sensor_height", &b.sensor_height, 1, 100000));
+  GONIO_TRY(r.Number(t, "source_sr", &b.source_sr, 0, 0.5));
+  GONIO_TRY(r.Number(t, "receiver_sr", &b.receiver_sr, 0, 0.5));
+  if (Status s = b.Validate(); !s.ok()) return r.Fail(&t, s.error().message);
+  return OkStatus();
+}
+
 }  // namespace
 
 Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
@@ -190,11 +211,15 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   const toml::table& root = *parsed;
   Reader r(path);
   InstrumentConfig c;
-  GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor"}));
+  GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor", "bench"}));
   if (const toml::table* t = root["camera"].as_table()) GONIO_TRY(ReadCamera(r, *t, c));
   if (const toml::table* t = root["stages"].as_table()) GONIO_TRY(ReadStages(r, *t, c));
   if (c.axes.empty()) return r.Fail(nullptr, "no [[stages.axis]]: the instrument needs its axes");
   if (const toml::table* t = root["monitor"].as_table()) GONIO_TRY(ReadMonitor(r, *t, c.monitor));
+  if (const toml::table* t = root["bench"].as_table()) {
+    c.bench.emplace();
+    GONIO_TRY(ReadBench(r, *t, *c.bench));
+  }
   return c;
 }
 

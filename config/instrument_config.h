@@ -1,12 +1,14 @@
 // The instrument's configuration file (TOML): which devices the daemon and gonio-hw open and how
 // - the camera (by numeric IP or USB3 id, its format, region, cooling feature names), the stage
 // controller (Modbus TCP or RTU link, register profile, each axis's gearing, limits and motion),
-// and the optional source monitor (USB ids, or gonio-sim's loopback socket). The example with
+// the optional source monitor (USB ids, or gonio-sim's loopback socket), and the bench's optical
+// geometry (the instrument response's). The example with
 // every key: config/instrument.toml, which drives the simulated instrument of config/sim.toml.
 // Errors name the file and line; unknown keys are refused. Plain data: opening the devices it
 // describes is the daemon's (daemon/instrument/instrument.h), the one place that names backends.
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -14,6 +16,7 @@
 #include "devices/camera.h"
 #include "devices/stage.h"
 #include "devices/usbtmc_transport.h"
+#include "fitting/response.h"
 
 namespace gonio::config {
 
@@ -35,6 +38,9 @@ struct InstrumentConfig {
   devices::StageRegisterProfile registers;
   std::vector<devices::AxisSettings> axes;
   MonitorConfig monitor;
+  // [bench]: the optics' geometry that each point's instrument response is computed from
+  // (fitting/response.h). Absent: runs carry no response and are fitted with the point model.
+  std::optional<fitting::BenchOptics> bench;
 };
 
 Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path);

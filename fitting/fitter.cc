@@ -383,6 +383,8 @@ Status FitOptions::Validate() const {
   if (max_local_fits < 1) return InvalidArgument("max_local_fits must be >= 1");
   if (scan_points < 4) return InvalidArgument("scan_points must be >= 4");
   if (max_iterations < 1) return InvalidArgument("max_iterations must be >= 1");
+  if (!(std::isfinite(response_tolerance) && response_tolerance >= 0))
+    return InvalidArgument("response_tolerance must be a finite number >= 0");
   if (!automatic_starts && !initial_width)
     return InvalidArgument("automatic_starts = false needs an initial_width");
   return OkStatus();

@@ -6,6 +6,7 @@
 #include <fstream>
 #include <iomanip>
 #include <map>
+#include <memory>
 #include <sstream>
 
 namespace gonio::fitting {
@@ -38,6 +39,7 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
   std::vector<Sample> samples;
   std::size_t n_columns = 0;
   bool have_header = false;
+  std::shared_ptr<const ResponseSetup> setup;
   int line_no = 0;
   std::size_t pos = 0;
   while (pos <= text.size()) {
@@ -45,11 +47,18 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
     const std::string_view line = Trim(text.substr(pos, end - pos));
     pos = end + 1;
     ++line_no;
+    auto where = [&] { return name + ":" + std::to_string(line_no) + ": "; };
+    // "# response: {...}": the instrument response's setup of an exported run (response.h).
+    constexpr std::string_view kResponse = "# response:";
+    if (line.substr(0, kResponse.size()) == kResponse) {
+      auto parsed = ResponseSetup::FromJson(std::string(line.substr(kResponse.size())));
+      if (!parsed.ok()) return InvalidArgument(where() + parsed.error().message);
+      setup = std::make_shared<const ResponseSetup>(std::move(parsed).value());
+    }
     if (line.empty() || line.front() == '#') {
       if (end == text.size()) break;
       continue;
     }
-    auto where = [&] { return name + ":" + std::to_string(line_no) + ": "; };
     const auto fields = SplitCommas(line);
     if (!have_header) {
       for (std::size_t k = 0; k < fields.size(); ++k) column[std::string(fields[k])] = k;
@@ -104,6 +113,17 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
     if (!(std::abs(tv) < 90)) return InvalidArgument(where() + "theta_v_deg must lie in (-90, 90)");
     Sample s = SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);
     s.line = line_no;
+    if (setup) {
+      if (!column.count("sample_read_deg") || !column.count("arm_read_deg"))
+        return InvalidArgument(where() +
+                               "the file has a '# response:' line but no sample_read_deg and "
+                               "arm_read_deg columns to place each point");
+      StagePosition at;
+      if (Status st = number("sample_read_deg", 0, &at.sample_deg); !st) return st.error();
+      if (Status st = number("arm_read_deg", 0, &at.arm_deg); !st) return st.error();
+      if (Status st = number("azimuth_read_deg", 0, &at.azimuth_deg); !st) return st.error();
+      s.response = PointResponse{setup, at};
+    }
     samples.push_back(s);
     if (end == text.size()) break;
   }

@@ -5,7 +5,11 @@
 //   phi_l_deg, phi_v_deg                     optional, default 0
 //   side                                     optional: transmission (or empty); a reflection
 //                                            row is refused (the models are BTDFs)
-// Other columns are ignored. Blank lines and lines starting with '#' are skipped.
+//   sample_read_deg, arm_read_deg,           with a "# response: {json}" line before the header
+//   azimuth_read_deg                         (an exported run of a bench with [bench]): each
+//                                            sample's stage position, so that it carries its
+//                                            instrument response (response.h)
+// Other columns are ignored. Blank lines and other lines starting with '#' are skipped.
 // Every error names file:line and the column; nothing is guessed.
 #pragma once
 

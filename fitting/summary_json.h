@@ -1,5 +1,5 @@
 // A fit's summary as JSON: what gonio-fit writes to fit_summary.json and what goniod stores in
-// the fit_results table. Header-only, so that the fitting library itself needs no JSON library.
+// the fit_results table. Header-only.
 #pragma once
 
 #include <nlohmann/json.hpp>
@@ -29,7 +29,17 @@ inline nlohmann::json ToJson(const FitSummary& f) {
           {"bic", f.bic},
           {"iterations", f.iterations},
           {"local_fits", f.local_fits},
-          {"points_in_lobe", f.points_in_lobe}};
+          {"points_in_lobe", f.points_in_lobe},
+          {"floor", param(f.floor)},
+          {"floor_fitted", f.floor_fitted},
+          {"floor_choice", f.floor_choice},
+          {"response",
+           {{"samples_with_response", f.response.samples_with_response},
+            {"rectangle", f.response.rectangle},
+            {"apertures", f.response.apertures},
+            {"rays", f.response.rays},
+            {"rounds", f.response.rounds}}},
+          {"seconds", f.seconds}};
 }
 
 }  // namespace gonio::fitting

@@ -1,5 +1,6 @@
 #include "daemon/instrument/instrument.h"
 
+#include <algorithm>
 #include <utility>
 
 #include "backends/aravis_camera.h"
@@ -47,6 +48,22 @@ acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
   ctx.specimens = std::move(specimens);
   ctx.axes = c.axes;
   return ctx;
+}
+
+std::string ResponseJsonFor(const config::InstrumentConfig& c, const acquisition::Plan& plan) {
+  if (!c.bench) return "";
+  fitting::ResponseSetup s;
+  s.bench = *c.bench;
+  s.thickness_mm = plan.specimen.thickness_mm;
+  // The camera's region origin is in sensor pixels; binning applies to both axes.
+  s.rectangle.offset_x = c.camera.roi_x;
+  s.rectangle.offset_y = c.camera.roi_y;
+  s.rectangle.binning_h = s.rectangle.binning_v = std::max(1, c.camera.binning);
+  s.rectangle.x = plan.rectangle.x;
+  s.rectangle.y = plan.rectangle.y;
+  s.rectangle.width = plan.rectangle.width;
+  s.rectangle.height = plan.rectangle.height;
+  return s.ToJson();
 }
 
 Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,

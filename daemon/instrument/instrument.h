@@ -34,6 +34,12 @@ Result<OpenedMonitor> OpenMonitor(const config::InstrumentConfig& c);
 acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
                                        std::vector<acquisition::Specimen> specimens);
 
+// What rebuilds each point's instrument response for a run of `plan` (fitting::ResponseSetup as
+// JSON): the [bench] geometry, the camera's region and binning with the plan's rectangle, the
+// specimen's thickness. Empty when the config has no [bench] (the run is fitted with the point
+// model).
+std::string ResponseJsonFor(const config::InstrumentConfig& c, const acquisition::Plan& plan);
+
 struct Instrument {
   std::unique_ptr<devices::Camera> camera;
   std::unique_ptr<devices::StageController> stages;

@@ -528,7 +528,8 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     return;
   }
   if (!job.run) {
-    auto run = db_.NewRun(*plan, o_.config_text, acquisition::ExpandPoints(*plan, context_));
+    auto run = db_.NewRun(*plan, o_.config_text, acquisition::ExpandPoints(*plan, context_),
+                          o_.response_for ? o_.response_for(*plan) : std::string());
     if (!run.ok()) {
       FinishCurrent(JobState::kFailed, run.error().message);
       SetState(State::kIdle, "");

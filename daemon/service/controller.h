@@ -24,6 +24,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -76,6 +77,9 @@ struct ControllerOptions {
   acquisition::EngineOptions engine;
   Suspenders suspenders;
   std::string config_text;  // the instrument config, stored with each run
+  // What rebuilds a run's instrument responses (ResponseJsonFor), stored with each run; unset or
+  // empty: none.
+  std::function<std::string(const acquisition::Plan&)> response_for;
 };
 
 struct StatusReport {

@@ -1,6 +1,7 @@
 #include "daemon/service/fit_run.h"
 
 #include <cmath>
+#include <memory>
 
 #include "fitting/protocol.h"
 #include "fitting/sample.h"
@@ -16,6 +17,17 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
   if (!info.ok()) return Error{ErrorCode::kNotFound, info.error().message};
   auto rows = db.Measurements(run);
   if (!rows.ok()) return rows.error();
+  // The run's instrument response, when its bench's geometry was configured: a stored setup that
+  // does not parse is an error naming the run (the fit is not made; nothing is stored or changed).
+  std::shared_ptr<const fitting::ResponseSetup> setup;
+  if (info->response) {
+    auto parsed = fitting::ResponseSetup::FromJson(*info->response);
+    if (!parsed.ok())
+      return Error{ErrorCode::kFailedPrecondition,
+                   "run " + std::to_string(run) + ": its stored instrument response is corrupt (" +
+                       parsed.error().message + "); the run is left as it is"};
+    setup = std::make_shared<const fitting::ResponseSetup>(std::move(parsed).value());
+  }
   std::vector<fitting::Sample> samples;
   for (const auto& r : *rows) {
     if (r.point.reflection)  // a plan has one side: the whole run is reflection
@@ -27,11 +39,15 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
         fitting::SampleFromBenchAngles(r.point.theta_l_deg, r.point.phi_deg, r.point.theta_v_deg,
                                        r.point.phi_deg, r.m.value, r.m.sigma);
     s.line = r.point.index;
+    if (setup)
+      s.response = fitting::PointResponse{
+          setup, {r.m.sample_read_deg, r.m.arm_read_deg, r.m.azimuth_read_deg}};
     samples.push_back(s);
   }
   fitting::ProtocolOptions po;
   po.models = *specs;
   po.base.eta = info->specimen_eta;
+  po.base.floor = fitting::Floor::kAuto;  // no background is measured: a floor only if needed
   if (Status v = fitting::ValidateSamples(samples, po.base.NumParams(),
                                           "run " + std::to_string(run) + " point");
       !v.ok())

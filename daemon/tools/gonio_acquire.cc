@@ -204,7 +204,7 @@ int main(int argc, char** argv) {
     std::ifstream file(config_path);
     std::stringstream text;
     text << file.rdbuf();
-    auto id = store.NewRun(*plan, text.str(), points);
+    auto id = store.NewRun(*plan, text.str(), points, daemon::ResponseJsonFor(*cfg, *plan));
     if (!id.ok()) return Fail(id.error());
     run_id = *id;
     std::cout << "run " << run_id << " created in " << db_path << std::endl;

@@ -57,6 +57,16 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
               << std::setw(10) << std::setprecision(4) << f.reduced_chi2 << std::setw(10)
               << std::setprecision(3) << choice.delta_bic[k] << ToString(f.status) << "\n";
     if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
+    if (f.response.samples_with_response > 0)
+      std::cout << "    instrument response: " << f.response.rectangle << " of " << f.n_points
+                << " samples through the rectangle's rays (" << f.response.apertures
+                << " with the apertures too), " << f.response.rays
+                << " model evaluations per pass, " << f.response.rounds << " solve(s); "
+                << std::setprecision(3) << f.seconds << " s\n";
+    if (f.floor_fitted)
+      std::cout << "    floor: " << PlusMinus(f.floor, 6) << " (" << f.floor_choice << ")\n";
+    else if (!f.floor_choice.empty())
+      std::cout << "    " << f.floor_choice << "\n";
   }
   std::cout << "model choice: " << choice.reason << "\n";
 }
@@ -131,7 +141,9 @@ Status WriteOutputs(const std::string& out_dir, const std::string& csv_path,
 
 int main(int argc, char** argv) {
   CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos samples"};
-  std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir;
+  std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir,
+                        floor_arg = "auto";
+  bool point_model = false;
   FitOptions base;
   double start = 0, systematic = 0;
   bool rational = false;
@@ -154,6 +166,15 @@ int main(int argc, char** argv) {
   app.add_option("--start", start,
                  "starting width (alpha, exponent or s) in addition to the automatic starts");
   app.add_flag("--rational-g1", rational, "Beckmann with Walter's rational G1 (eq. 27)");
+  app.add_option("--floor", floor_arg,
+                 "a constant floor (stray light): auto (kept when BIC prefers it), on or off")
+      ->capture_default_str();
+  app.add_flag("--point-model", point_model,
+               "ignore the samples' instrument response (an export's '# response:' line)");
+  app.add_option("--response-tolerance", base.response_tolerance,
+                 "use a sample's response where it changes the prediction by more than this "
+                 "fraction of its sigma")
+      ->capture_default_str();
   app.add_option("--out", out_dir,
                  "directory for fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json");
   CLI11_PARSE(app, argc, argv);
@@ -173,6 +194,15 @@ int main(int argc, char** argv) {
   else if (loss_arg != "none")
     return fail_input("--loss: '" + loss_arg + "' is not none, huber or cauchy");
   if (start != 0) base.initial_width = start;
+  if (floor_arg == "auto")
+    base.floor = Floor::kAuto;
+  else if (floor_arg == "on")
+    base.floor = Floor::kFit;
+  else if (floor_arg == "off")
+    base.floor = Floor::kOff;
+  else
+    return fail_input("--floor: '" + floor_arg + "' is not auto, on or off");
+  base.use_response = !point_model;
   if (auto s = base.Validate(); !s) return fail_input(s.error().message);
   if (!std::isfinite(systematic) || systematic < 0 || systematic >= 1)
     return fail_input("--systematic: " + std::to_string(systematic) +

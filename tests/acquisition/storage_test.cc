@@ -49,16 +49,22 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   }
   sqlite3* db = nullptr;
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  // Back to version 1: without the jobs (2) and the points' side (3).
+  // Back to version 1: without the jobs (2), the points' side (3), the runs' response and the
+  // points' budget (4).
   ASSERT_EQ(sqlite3_exec(db,
                          "DROP INDEX jobs_by_state; DROP TABLE jobs; "
-                         "ALTER TABLE plan_points DROP COLUMN side; PRAGMA user_version=1",
+                         "ALTER TABLE plan_points DROP COLUMN side; "
+                         "ALTER TABLE runs DROP COLUMN response; "
+                         "ALTER TABLE measurements DROP COLUMN sigma_stat; "
+                         "ALTER TABLE measurements DROP COLUMN sigma_lamp; "
+                         "ALTER TABLE measurements DROP COLUMN sigma_monitor; "
+                         "PRAGMA user_version=1",
                          nullptr, nullptr, nullptr),
             SQLITE_OK);
   sqlite3_close(db);
   auto s = Storage::Open(path);
   ASSERT_TRUE(s.ok()) << s.error().message;
-  EXPECT_EQ((*s)->schema_version(), 3);
+  EXPECT_EQ((*s)->schema_version(), 4);
   auto rows = (*s)->Measurements(run);
   ASSERT_TRUE(rows.ok());
   ASSERT_EQ(rows->size(), 1u);

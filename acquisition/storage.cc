@@ -409,7 +409,8 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
          "p.azimuth_deg, m.sample_read_deg, m.arm_read_deg, m.azimuth_read_deg, m.exposure_s, "
          "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
          "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries, "
-         "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor FROM measurements m JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
+         "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor FROM measurements m JOIN plan_points "
+         "p ON p.run_id=m.run_id AND p.idx=m.idx "
          "WHERE m.run_id=? ORDER BY p.idx");
   q.Bind(1, run);
   std::vector<MeasurementRow> out;
@@ -529,8 +530,8 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
         << r.point.phi_deg << "," << r.m.value << "," << r.m.sigma << "," << r.m.exposure_s << ","
         << r.m.frames << "," << r.m.rect_mean << "," << r.m.temperature_c << ","
         << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << ","
-        << (r.point.reflection ? "reflection" : "transmission") << "," << r.m.sample_read_deg
-        << "," << r.m.arm_read_deg << "," << r.m.azimuth_read_deg << "," << r.m.sigma_stat << ","
+        << (r.point.reflection ? "reflection" : "transmission") << "," << r.m.sample_read_deg << ","
+        << r.m.arm_read_deg << "," << r.m.azimuth_read_deg << "," << r.m.sigma_stat << ","
         << r.m.sigma_lamp << "," << r.m.sigma_monitor << "\n";
   }
   return OkStatus();

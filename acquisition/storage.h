@@ -81,7 +81,7 @@ struct Measurement {
   // sigma's components, added in quadrature (docs/measurement.md): shot, read and dark noise;
   // the lamp's fluctuation between the point's frames; the monitor normalisation.
   double sigma_stat = 0, sigma_lamp = 0, sigma_monitor = 0;
-  int flags = 0;                // kFlag*
+  int flags = 0;  // kFlag*
   int ranging_tries = 0;
 };
 inline constexpr int kFlagAtMaxExposure = 1;  // underexposed even at the longest exposure

@@ -131,7 +131,9 @@ int main(int argc, char** argv) {
     text << file.rdbuf();
     co.config_text = text.str();
   }
-  co.response_for = [c = *cfg](const acquisition::Plan& p) { return daemon::ResponseJsonFor(c, p); };
+  co.response_for = [c = *cfg](const acquisition::Plan& p) {
+    return daemon::ResponseJsonFor(c, p);
+  };
   daemon::Controller controller(*in.stages, *in.camera, in.monitor.monitor.get(), **db, in.context,
                                 co);
   std::thread logger([&controller] { LogEvents(controller.events()); });

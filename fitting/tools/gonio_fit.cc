@@ -141,8 +141,7 @@ Status WriteOutputs(const std::string& out_dir, const std::string& csv_path,
 
 int main(int argc, char** argv) {
   CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos samples"};
-  std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir,
-                        floor_arg = "auto";
+  std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir, floor_arg = "auto";
   bool point_model = false;
   FitOptions base;
   double start = 0, systematic = 0;

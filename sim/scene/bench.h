@@ -90,7 +90,9 @@ struct SceneOptions {
   double stray_lens_e_per_s = 2.0;
   double stray_background_e_per_s = 0.2;
   Apertures apertures;
-  double aperture_tolerance = 0.005;  // average the apertures when they change the peak by more
+  // Average the apertures when they change the nominal value by more than this: 2e-4, below the
+  // 3e-4 a ground-glass peak resolves (docs/measurement.md); 0.005 left a 0.1-0.8 % bias there.
+  double aperture_tolerance = 2e-4;
 };
 
 // One pixel's traced ray.

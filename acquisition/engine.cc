@@ -198,7 +198,7 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
                    "source monitor reads " + std::to_string(*m.monitor_w) + " W: lamp off?"};
     // One reading's relative variance, pooled over the run; the mean's is that over n.
     for (double w : e.monitor) monitor_pool_.sum2 += std::pow(w / *m.monitor_w - 1, 2);
-    monitor_pool_.dof += n - 1;
+    monitor_pool_.weight += n - 1;
     monitor_rel_var = monitor_pool_.Variance() / n;
     if (!monitor_reference_) {  // kept for the record: the run's first reading
       monitor_reference_ = *m.monitor_w;
@@ -221,13 +221,14 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   m.sigma_stat = std::sqrt(var_mean) / (t * norm);
   m.sigma_monitor = std::abs(m.value) * std::sqrt(monitor_rel_var);
   // The lamp between frames: each frame's mean scatters by its pixels' noise / P and by what all
-  // pixels share; the excess over the first, relative to the signal, pooled by exposure.
+  // pixels share (c s^2 for a relative fluctuation c of the signal s). c is the ratio of the
+  // pooled excess to the pooled s^2, by exposure.
   const double signal = m.rect_mean - dark->mean;
-  if (m.frames >= 2 && std::abs(signal) > 0) {
+  if (m.frames >= 2) {
     Pool& pool = lamp_pools_[static_cast<std::int64_t>(std::llround(t * 1e6))];
     const double excess = acc.FrameMeansSd() * acc.FrameMeansSd() - m.pixel_var / m.rect_pixels;
-    pool.sum2 += (m.frames - 1) * excess / (signal * signal);
-    pool.dof += m.frames - 1;
+    pool.sum2 += (m.frames - 1) * excess;
+    pool.weight += (m.frames - 1) * signal * signal;
     m.sigma_lamp = std::abs(m.value) * std::sqrt(pool.Variance() / m.frames);
   }
   m.sigma = std::sqrt(m.sigma_stat * m.sigma_stat + m.sigma_lamp * m.sigma_lamp +

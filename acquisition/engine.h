@@ -113,10 +113,13 @@ class Engine {
   std::optional<double> monitor_reference_;
   double last_exposure_s_ = 0;
   std::map<std::int64_t, DarkRecord> darks_;  // by exposure in microseconds
-  // Pooled relative variances (sum of squares and degrees of freedom) for the budget.
+  // Pooled relative variances for the budget: sum2 / weight, each point adding its squared
+  // deviations and its weight (degrees of freedom; for the lamp, degrees of freedom times the
+  // squared signal, so that dim points, whose frames scatter by pixel noise alone, do not swamp
+  // the estimate of a relative fluctuation).
   struct Pool {
-    double sum2 = 0, dof = 0;
-    double Variance() const { return dof > 0 ? std::max(0.0, sum2 / dof) : 0.0; }
+    double sum2 = 0, weight = 0;
+    double Variance() const { return weight > 0 ? std::max(0.0, sum2 / weight) : 0.0; }
   };
   Pool monitor_pool_;                        // of one monitor reading
   std::map<std::int64_t, Pool> lamp_pools_;  // of one frame's common mode, by exposure (us)

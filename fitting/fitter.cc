@@ -184,10 +184,12 @@ int PointsInLobe(std::span<const Sample> samples, std::span<const double> predic
 // Covariance of the solver parameters, (J^T J)^-1 from one Jacobian evaluation at the solution
 // (with the robust loss's correction when there is one, as ceres::Covariance would). Returns
 // false when J^T J is singular to working precision: some direction is not constrained.
-bool Covariance(ceres::Problem& problem, std::vector<double*> blocks, Eigen::MatrixXd* cov) {
+bool Covariance(ceres::Problem& problem, std::vector<double*> blocks, Eigen::MatrixXd* cov,
+                ceres::CRSMatrix* jacobian = nullptr) {
   ceres::Problem::EvaluateOptions eo;
   eo.parameter_blocks = blocks;
-  ceres::CRSMatrix j;
+  ceres::CRSMatrix local;
+  ceres::CRSMatrix& j = jacobian ? *jacobian : local;
   if (!problem.Evaluate(eo, nullptr, nullptr, nullptr, &j)) return false;
   const int p = j.num_cols;
   Eigen::MatrixXd jtj = Eigen::MatrixXd::Zero(p, p);
@@ -524,7 +526,8 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
   if (o.fit_eta) blocks.push_back(winner.x + 2);
   if (p.fit_floor) blocks.push_back(winner.x + 3);
   Eigen::MatrixXd c;
-  bool cov_ok = Covariance(*winner.problem, blocks, &c);
+  ceres::CRSMatrix j;
+  bool cov_ok = Covariance(*winner.problem, blocks, &c, &j);
   // Inflate when the residuals scatter more than the sigmas say. With a robust loss the outliers
   // it down-weights would dominate chi2, so the scatter is measured robustly (1.4826 MAD).
   double scatter2 = out.reduced_chi2;
@@ -548,6 +551,27 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
     if (p.fit_floor) {
       const int i = o.fit_eta ? 3 : 2;
       out.floor.sigma = p.floor_unit * std::sqrt(std::max(c(i, i) * inflate, 0.0));
+    }
+    // The statistical part: the sandwich C J^T D J C, with D_i = (sigma_stat_i / sigma_i)^2 the
+    // share of each sample's variance that is statistical (rows of J are the samples, in order).
+    bool have_stat = j.num_rows == static_cast<int>(p.samples.size());
+    for (const Sample& s : p.samples) have_stat = have_stat && s.sigma_stat > 0;
+    if (have_stat) {
+      const int n = j.num_cols;
+      Eigen::MatrixXd m = Eigen::MatrixXd::Zero(n, n);
+      for (int r = 0; r < j.num_rows; ++r) {
+        const double d = std::pow(std::min(1.0, p.samples[r].sigma_stat / p.samples[r].sigma), 2);
+        for (int a = j.rows[r]; a < j.rows[r + 1]; ++a)
+          for (int b = j.rows[r]; b < j.rows[r + 1]; ++b)
+            m(j.cols[a], j.cols[b]) += d * j.values[a] * j.values[b];
+      }
+      const Eigen::MatrixXd cs = c * m * c;
+      out.width.sigma_stat = out.width.value * std::sqrt(std::max(cs(0, 0), 0.0));
+      out.scale.sigma_stat = out.scale.value * std::sqrt(std::max(cs(1, 1), 0.0));
+      if (p.fit_floor) {
+        const int i = o.fit_eta ? 3 : 2;
+        out.floor.sigma_stat = p.floor_unit * std::sqrt(std::max(cs(i, i), 0.0));
+      }
     }
   }
   return cov_ok;

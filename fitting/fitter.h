@@ -80,6 +80,10 @@ const char* ToString(FitStatus s);
 struct Parameter {
   double value = 0;
   double sigma = 0;  // 1-sigma; 0 for a fixed parameter
+  // The part of sigma that the samples' statistical sigmas (Sample::sigma_stat: shot, read and
+  // dark noise) account for; the rest, sqrt(sigma^2 - sigma_stat^2), is the instrument's (lamp,
+  // monitor) and any inflation by chi-square. 0 when the samples carry no statistical part.
+  double sigma_stat = 0;
 };
 
 // How the instrument response entered a fit (FitOptions::use_response).

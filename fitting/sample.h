@@ -18,7 +18,10 @@ struct Sample {
   optics::Vec3<double> view;   // unit; z < 0 (glass side), pointing from the sample to the camera
   double value = 0;            // S in any consistent unit (e.g. dark-subtracted counts per second)
   double sigma = 0;            // 1-sigma uncertainty of value, same unit, > 0
-  int line = 0;                // where it came from (file line), 0 when not from a file
+  // The statistical part of sigma (shot, read and dark noise), when the bench's budget gives it
+  // (acquisition: sigma_stat); 0 when unknown. The fitter splits each parameter's sigma by it.
+  double sigma_stat = 0;
+  int line = 0;  // where it came from (file line), 0 when not from a file
   // The instrument response (response.h), when the sample came from a run of a bench whose
   // geometry is known; absent for synthetic or bare CSV samples (the point model then).
   std::optional<PointResponse> response;

@@ -113,6 +113,7 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
     if (!(std::abs(tv) < 90)) return InvalidArgument(where() + "theta_v_deg must lie in (-90, 90)");
     Sample s = SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);
     s.line = line_no;
+    if (Status st = number("sigma_stat", 0, &s.sigma_stat); !st) return st.error();
     if (setup) {
       if (!column.count("sample_read_deg") || !column.count("arm_read_deg"))
         return InvalidArgument(where() +

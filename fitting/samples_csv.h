@@ -9,6 +9,7 @@
 //   azimuth_read_deg                         (an exported run of a bench with [bench]): each
 //                                            sample's stage position, so that it carries its
 //                                            instrument response (response.h)
+//   sigma_stat                               optional: sigma's statistical part (an export's)
 // Other columns are ignored. Blank lines and other lines starting with '#' are skipped.
 // Every error names file:line and the column; nothing is guessed.
 #pragma once

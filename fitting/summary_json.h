@@ -10,7 +10,7 @@ namespace gonio::fitting {
 
 inline nlohmann::json ToJson(const FitSummary& f) {
   auto param = [](const Parameter& p) {
-    return nlohmann::json{{"value", p.value}, {"sigma", p.sigma}};
+    return nlohmann::json{{"value", p.value}, {"sigma", p.sigma}, {"sigma_stat", p.sigma_stat}};
   };
   return {{"model", Describe(f.model)},
           {"family", Name(f.model.family)},

@@ -39,6 +39,7 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
         fitting::SampleFromBenchAngles(r.point.theta_l_deg, r.point.phi_deg, r.point.theta_v_deg,
                                        r.point.phi_deg, r.m.value, r.m.sigma);
     s.line = r.point.index;
+    s.sigma_stat = r.m.sigma_stat;
     if (setup)
       s.response = fitting::PointResponse{
           setup, {r.m.sample_read_deg, r.m.arm_read_deg, r.m.azimuth_read_deg}};

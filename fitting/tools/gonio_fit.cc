@@ -6,6 +6,7 @@
 //
 // Exit status: 0 when at least one model was fitted, 1 when every fit failed, 2 for bad input.
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -33,7 +34,10 @@ std::vector<std::string> Split(const std::string& s) {
   return out;
 }
 
+// The value and its sigma, with at least two significant digits of the sigma.
 std::string PlusMinus(const Parameter& p, int precision) {
+  if (p.sigma > 0 && std::isfinite(p.sigma))
+    precision = std::clamp(1 - static_cast<int>(std::floor(std::log10(p.sigma))), precision, 12);
   std::ostringstream os;
   os << std::fixed << std::setprecision(precision) << p.value;
   if (p.sigma > 0) os << " +- " << p.sigma;
@@ -57,6 +61,14 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
               << std::setw(10) << std::setprecision(4) << f.reduced_chi2 << std::setw(10)
               << std::setprecision(3) << choice.delta_bic[k] << ToString(f.status) << "\n";
     if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
+    if (f.width.sigma_stat > 0)
+      std::cout << "    " << WidthName(f.model.family) << "'s sigma " << std::setprecision(3)
+                << f.width.sigma << ": statistical (shot, read, dark) " << f.width.sigma_stat
+                << ", instrument (lamp, monitor" << (f.reduced_chi2 > 1 ? ", chi2 inflation" : "")
+                << ") "
+                << std::sqrt(std::max(0.0, f.width.sigma * f.width.sigma -
+                                               f.width.sigma_stat * f.width.sigma_stat))
+                << "\n";
     if (f.response.samples_with_response > 0)
       std::cout << "    instrument response: " << f.response.rectangle << " of " << f.n_points
                 << " samples through the rectangle's rays (" << f.response.apertures

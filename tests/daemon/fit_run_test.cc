@@ -1,4 +1,4 @@
-// Fitting a stored run (daemon/service/fit_run.h) refuses a reflection run: its samples are
+// Fitting a stored run (daemon/service/fit_run.h). It refuses a reflection run: its samples are
 // f_r cos theta_l with the view above the surface, which no BTDF model of the fitter describes.
 // The run's side survives the database (plan_points.side), so the refusal does not depend on
 // the plan text.
@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <sqlite3.h>
 #include <unistd.h>
 #include <cmath>
 #include <filesystem>
@@ -54,6 +55,80 @@ TEST(FitRun, AReflectionRunIsRefusedAndNothingIsStored) {
     auto stored = (*db)->FitResults(*run);
     ASSERT_TRUE(stored.ok());
     EXPECT_TRUE(stored->empty());
+  }
+  for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(path + ext);
+}
+
+// A run stored with its instrument response is fitted through it; the same run with the stored
+// response corrupted is refused naming the run, and nothing stored is changed.
+TEST(FitRun, ARunsStoredResponseIsUsedAndACorruptOneIsRefusedChangingNothing) {
+  const std::string path = (std::filesystem::temp_directory_path() /
+                            ("gonio_fit_response_" + std::to_string(::getpid()) + ".sqlite"))
+                               .string();
+  std::filesystem::remove(path);
+  {
+    auto db = acquisition::Storage::Open(path);
+    ASSERT_TRUE(db.ok()) << db.error().message;
+    fitting::ResponseSetup setup;  // the default bench, a 1 x 3 mm rectangle at the pole
+    setup.rectangle = {0, 0, 1, 1, 253, 246, 6, 19};
+    std::vector<acquisition::PlannedPoint> pts;
+    const double tt = std::asin(std::sin(30 * M_PI / 180) / 1.51) * 180 / M_PI;
+    for (int k = 0; k < 15; ++k) {
+      acquisition::PlannedPoint p;
+      p.index = k;
+      p.theta_l_deg = 30;
+      p.theta_v_deg = -tt - 14 + 2 * k;
+      p.stage = StageTargetsFor(30, p.theta_v_deg);
+      pts.push_back(p);
+    }
+    acquisition::Plan plan;
+    plan.specimen = {"G1", "glass", 6, 1.51};
+    plan.text = "sample = \"G1\"";
+    auto run = (*db)->NewRun(plan, "[camera]\n", pts, setup.ToJson());
+    ASSERT_TRUE(run.ok()) << run.error().message;
+    for (const auto& p : pts) {
+      const auto s = fitting::SampleFromBenchAngles(30, 0, p.theta_v_deg, 0, 0, 0);
+      acquisition::Measurement m;
+      m.index = p.index;
+      m.sample_read_deg = p.stage.sample_deg;
+      m.arm_read_deg = p.stage.arm_deg;
+      m.value = fitting::MeasurementModel(fitting::ModelSpec{}, s.light, s.view, 0.3, 1000.0, 1.51);
+      m.sigma = m.sigma_stat = 0.01 * m.value + 0.01;
+      m.frames = 4;
+      m.exposure_s = 1;
+      m.rect_pixels = 114;
+      ASSERT_TRUE((*db)->StoreMeasurement(*run, m).ok());
+    }
+    auto fits = FitRun(**db, *run, {"beckmann"});
+    ASSERT_TRUE(fits.ok()) << fits.error().message;
+    ASSERT_EQ(fits->size(), 1u);
+    EXPECT_EQ((*fits)[0].summary.response.samples_with_response, 15);
+    auto stored = (*db)->FitResults(*run);
+    ASSERT_TRUE(stored.ok());
+    ASSERT_EQ(stored->size(), 1u);
+    auto before = (*db)->Measurements(*run);
+    ASSERT_TRUE(before.ok());
+
+    sqlite3* raw = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK);
+    ASSERT_EQ(
+        sqlite3_exec(raw, "UPDATE runs SET response='{\"bench\": 3}'", nullptr, nullptr, nullptr),
+        SQLITE_OK);
+    sqlite3_close(raw);
+    auto again = FitRun(**db, *run, {"beckmann"});
+    ASSERT_FALSE(again.ok());
+    EXPECT_EQ(again.error().code, ErrorCode::kFailedPrecondition);
+    EXPECT_NE(again.error().message.find("stored instrument response is corrupt"),
+              std::string::npos)
+        << again.error().message;
+    EXPECT_NE(again.error().message.find("run " + std::to_string(*run)), std::string::npos);
+    auto stored_after = (*db)->FitResults(*run);
+    auto after = (*db)->Measurements(*run);
+    ASSERT_TRUE(stored_after.ok() && after.ok());
+    EXPECT_EQ(stored_after->size(), 1u);
+    ASSERT_EQ(after->size(), before->size());
+    for (std::size_t i = 0; i < after->size(); ++i)
+      EXPECT_EQ((*after)[i].m.value, (*before)[i].m.value);
   }
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(path + ext);
 }

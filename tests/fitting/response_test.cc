@@ -8,6 +8,7 @@
 #include "common/bench_angles.h"
 #include "fitting/fitter.h"
 #include "fitting/response.h"
+#include "fitting/samples_csv.h"
 #include "sim/scene/aperture.h"
 #include "sim/scene/bench.h"
 #include "sim/truth/ground_truth.h"
@@ -222,6 +223,32 @@ TEST(ResponseTest, TheFloorIsKeptOnlyWhenTheDataNeedIt) {
   EXPECT_TRUE(floored->floor_fitted) << floored->floor_choice;
   EXPECT_NEAR(floored->floor.value, 2.0, 3 * floored->floor.sigma + 1e-9);
   EXPECT_LT(std::abs(floored->width.value - 0.344), 2 * floored->width.sigma);
+}
+
+TEST(ResponseTest, AnExportsResponseLineIsReadBackAndABadOneIsNamedByLine) {
+  const auto setup = CentredSetup(1, 3, 6);
+  const std::string header =
+      "theta_l_deg,theta_v_deg,value,sigma,sample_read_deg,arm_read_deg,azimuth_read_deg\n";
+  const std::string row = "0,2.5,10,0.1,0,182.5,0\n";
+  auto good = fitting::ParseSamplesCsv(
+      "# run 1\n# response: " + setup.ToJson() + "\n" + header + row, "run1.csv");
+  ASSERT_TRUE(good.ok()) << good.error().message;
+  ASSERT_TRUE((*good)[0].response.has_value());
+  EXPECT_DOUBLE_EQ((*good)[0].response->at.arm_deg, 182.5);
+  auto bare = fitting::ParseSamplesCsv(header + row, "bare.csv");
+  ASSERT_TRUE(bare.ok());
+  EXPECT_FALSE((*bare)[0].response.has_value());  // the point model for files without one
+  auto bad =
+      fitting::ParseSamplesCsv("# run 1\n# response: {\"bench\": 1}\n" + header + row, "run1.csv");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("run1.csv:2: response:"), std::string::npos)
+      << bad.error().message;
+  auto no_columns = fitting::ParseSamplesCsv(
+      "# response: " + setup.ToJson() + "\ntheta_l_deg,theta_v_deg,value,sigma\n0,2.5,10,0.1\n",
+      "run1.csv");
+  ASSERT_FALSE(no_columns.ok());
+  EXPECT_NE(no_columns.error().message.find("run1.csv:3:"), std::string::npos)
+      << no_columns.error().message;
 }
 
 }  // namespace

@@ -344,6 +344,61 @@ TEST_F(EngineDriftingLamp, MonitorNormalisationRemovesLampDrift) {
   EXPECT_GT(c[1].m.value / first_raw, 1.3);
 }
 
+// Issue #16's budget: with the demo's lamp (drift, slow wander and flicker, config/sim.toml), each
+// stored sigma is its components in quadrature (stat, lamp, monitor; the export carries them),
+// and two runs of one plan differ point by point about as those sigmas say: the rms of the pulls
+// (v1 - v2) / sqrt(s1^2 + s2^2) lies within 0.7-1.5. 27 pairs give it a sampling error of ~0.14;
+// six runs of this test gave 0.84-1.42 (mean 1.14), so about 10 % of the scatter is still not in
+// the budget (docs/measurement.md). PULLS=1 prints every pair.
+class EngineOnTheDemoLamp : public EngineOnSim {
+ protected:
+  sim::LampOptions LampOpts() override { return {}; }  // 1 %/h drift, 0.5 % wander, 0.2 % flicker
+};
+
+TEST_F(EngineOnTheDemoLamp, SigmaIsItsComponentsAndRepeatedRunsAgreeWithinIt) {
+  const std::string geometry =
+      "incidence_deg = [0, 30, 60]\nview_about = \"refracted\"\nview_from_deg = -10\n"
+      "view_to_deg = 10\nview_step_deg = 2.5";
+  const std::string exposure = "frames = 4\ninitial_s = 0.01\nmax_s = 2\nfloor = 0.004";
+  auto measure = [&] {
+    auto [plan, run] = NewRun(geometry, exposure);
+    Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
+                  EngineOptions{.linear_limit_adu = 65000});
+    return RunToEnd(engine, plan, run);
+  };
+  const auto a = measure();
+  const auto b = measure();
+  ASSERT_EQ(a.size(), 27u);
+  ASSERT_EQ(b.size(), 27u);
+  double z2 = 0, lamp = 0, monitor = 0;
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    for (const auto* r : {&a[k], &b[k]}) {
+      const Measurement& m = r->m;
+      EXPECT_NEAR(m.sigma * m.sigma,
+                  m.sigma_stat * m.sigma_stat + m.sigma_lamp * m.sigma_lamp +
+                      m.sigma_monitor * m.sigma_monitor,
+                  1e-9 * m.sigma * m.sigma);
+      lamp = std::max(lamp, m.sigma_lamp / m.sigma);
+      monitor = std::max(monitor, m.sigma_monitor / m.sigma);
+    }
+    const double z = (a[k].m.value - b[k].m.value) / std::hypot(a[k].m.sigma, b[k].m.sigma);
+    z2 += z * z;
+    if (std::getenv("PULLS"))
+      std::printf("%5.1f %6.1f t %.4g/%.4g z %6.2f  stat %.2g lamp %.2g mon %.2g (rel to value)\n",
+                  a[k].point.theta_l_deg, a[k].point.theta_v_deg, a[k].m.exposure_s,
+                  b[k].m.exposure_s, z, a[k].m.sigma_stat / a[k].m.value,
+                  a[k].m.sigma_lamp / a[k].m.value, a[k].m.sigma_monitor / a[k].m.value);
+  }
+  const double rms = std::sqrt(z2 / static_cast<double>(a.size()));
+  std::printf("27 pairs: rms pull %.3f; largest lamp share %.2f, monitor share %.2f\n", rms, lamp,
+              monitor);
+  EXPECT_GT(rms, 0.7);
+  EXPECT_LT(rms, 1.5);
+  // Both instrument terms are present somewhere in the run (not zero by construction).
+  EXPECT_GT(lamp, 0.2);
+  EXPECT_GT(monitor, 0.2);
+}
+
 // Issue #8, through the whole instrument: explicit rough surfaces of known sigma and tau, traced
 // by the explicit-surface Monte Carlo (no microfacet formula anywhere), are what the simulated
 // camera sees; the stages over Modbus, the CCD over GigE Vision, the engine, SQLite and the CSV

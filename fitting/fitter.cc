@@ -30,6 +30,13 @@ double RawFromEta(double eta) {
   return std::log(u / (1 - u));
 }
 
+// Whether a residual (double or Jet) and its derivatives are finite.
+inline bool ResidualFinite(double x) { return std::isfinite(x); }
+template <typename T>
+bool ResidualFinite(const T& x) {
+  return ceres::isfinite(x);
+}
+
 // How one sample is modelled: at its nominal pair (one geometry, weight 1), or through its
 // response's rays (eq. R1: weights w_j / N). The geometry is precomputed at the fit's eta.
 struct SampleModel {
@@ -64,7 +71,7 @@ struct Residual {
       m += T(sm->w[j]) *
            MeasurementModel(model, Vec3<T>(sm->g[j].l), Vec3<T>(sm->g[j].v), width, k, eta);
     r[0] = (m + floor[0] * T(floor_unit) - T(value)) * T(inv_sigma);
-    return true;
+    return ResidualFinite(r[0]);
   }
 };
 
@@ -80,7 +87,7 @@ struct FixedEtaResidual {
     using std::exp;
     const T m = exp(log_k[0]) * FixedEtaValue(model, *sm, exp(log_width[0]));
     r[0] = (m + floor[0] * T(floor_unit) - T(value)) * T(inv_sigma);
-    return true;
+    return ResidualFinite(r[0]);
   }
 };
 
@@ -124,6 +131,9 @@ struct BatchFixedEtaResidual {
                                         DTimesShadowingView(model, g0, width)
                                   : T(0);
       r[i] = (m + b - T(samples[i].value)) * T(1 / samples[i].sigma);
+      // A step to a width where the model overflows is refused quietly (the trust region
+      // shrinks), rather than reported by Ceres as a broken cost function.
+      if (!ResidualFinite(r[i])) return false;
     }
     return true;
   }

@@ -10,7 +10,10 @@
 #   acquisition_sweep  the engine's efficiency on the simulated instrument -> acquisition_sweep.md
 #   api_latency      goniod's /status latency under load during a sweep, and the sweep's slowdown
 #                                                  -> api_latency.md
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|sweep|api|soak ...]
+#   measurement_tradeoff  fit time against alpha bias and coverage: point model, rectangle,
+#                    rectangle + apertures, on Figure 12's samples -> measurement_tradeoff.md
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|sweep|api|soak ...]
+#        MEASURE_REPEATS=N sets measure's noise draws per case (default 20)
 #        (default: all but soak)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,7 +22,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene sweep api)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure sweep api)
 # Debian's matplotlib/scipy are installed for the system interpreter (docs/design.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -44,13 +47,16 @@ for part in "${parts[@]}"; do
         out/bench/truth_failure.png ;;
     scene)
       build-release/bench/scene_rectangle | tee out/bench/scene_rectangle.md ;;
+    measure)
+      build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" \
+        | tee out/bench/measurement_tradeoff.md ;;
     sweep)  # holds the GigE Vision port: no other simulated camera may run meanwhile
       build-release/bench/acquisition_sweep 5 10 | tee out/bench/acquisition_sweep.md ;;
     api)    # goniod's API under load during a sweep; holds the GigE Vision port too
       build-release/bench/api_latency 50 2 100 | tee out/bench/api_latency.md ;;
     soak)   # not in the default set: 10,000 points, several minutes
       build-release/bench/acquisition_sweep soak 10000 100 | tee out/bench/acquisition_soak.md ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, sweep, api, soak)" >&2
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, measure, sweep, api, soak)" >&2
        exit 2 ;;
   esac
 done

@@ -1,0 +1,153 @@
+// Speed against accuracy for the measurement equation (issue #16, docs/measurement.md): the
+// simulated scene renders the rectangle of each geometry (rays traced per pixel, the apertures
+// where they change a value by 2e-4, the lens's stray light), noise as the demo's budget gives it
+// is drawn `repeats` times, and each draw is fitted three ways:
+//   point      the point model at the nominal pair (no response), a floor where BIC wants one;
+//   rectangle  through the rectangle's rays, apertures as points;
+//   full       the rectangle and the apertures (the fitter's default for a run with [bench]).
+// Per case and way: the median fit time, the mean alpha bias (relative, and in the fits' own
+// sigmas), the share of fits whose 2-sigma interval covers the truth, and the mean chi2/dof.
+// The scene is not the whole instrument (no stages, camera or monitor): the noise is drawn from
+// the budget, not measured. Run: scripts/bench.sh measure [repeats]
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "common/bench_angles.h"
+#include "fitting/fitter.h"
+#include "fitting/response.h"
+#include "sim/scene/bench.h"
+#include "sim/truth/ground_truth.h"
+
+using namespace gonio;
+
+namespace {
+
+struct Case {
+  std::string sample, family;
+  double alpha, thickness_mm, rect_w_px, rect_h_px, view_span_deg, view_step_deg;
+};
+
+struct Way {
+  const char* name;
+  bool response, apertures;
+};
+
+struct Clean {
+  fitting::Sample s;
+  double value;
+};
+
+// The noise-free samples of a case: the scene's rectangle mean in units of k = 1000 e-/s.
+std::vector<Clean> Render(const Case& c) {
+  sim::BenchGeometry bench;
+  bench.sample_thickness_mm = c.thickness_mm;
+  const sim::Scene scene(bench, sim::MicrofacetTruth(c.family, c.alpha, 1.51));
+  auto setup = std::make_shared<fitting::ResponseSetup>();
+  setup->thickness_mm = c.thickness_mm;
+  setup->rectangle.width = static_cast<int>(c.rect_w_px);
+  setup->rectangle.height = static_cast<int>(c.rect_h_px);
+  setup->rectangle.x = 256 - setup->rectangle.width / 2;
+  setup->rectangle.y = 256 - setup->rectangle.height / 2;
+  sim::ImageRegion region;
+  region.offset_x = setup->rectangle.x;
+  region.offset_y = setup->rectangle.y;
+  region.width = setup->rectangle.width;
+  region.height = setup->rectangle.height;
+  std::vector<Clean> out;
+  for (double ti : {0.0, 30.0, 60.0}) {
+    const double tt = std::asin(std::sin(ti * M_PI / 180) / 1.51) * 180 / M_PI;
+    for (double dv = -c.view_span_deg; dv <= c.view_span_deg + 1e-9; dv += c.view_step_deg) {
+      const StageTargets t = StageTargetsFor(ti, -tt + dv);
+      const double rate = cv::mean(scene.Render({t.sample_deg, t.arm_deg, 0}, region))[0];
+      fitting::Sample s = fitting::SampleFromBenchAngles(ti, 0, -tt + dv, 0, 0, 0);
+      s.response = fitting::PointResponse{setup, {t.sample_deg, t.arm_deg, 0}};
+      out.push_back({s, rate / 1000});
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int repeats = argc > 1 ? std::max(1, std::atoi(argv[1])) : 20;
+  // Figure 12's samples (docs/reference.md), each family with its own width; 1 x 3 mm rectangles
+  // (6 x 19 pixels) for the wide lobes, 0.3 mm (2 x 2) and 3 x 10 mm (19 x 62) for antiglare.
+  std::vector<Case> cases;
+  for (const auto& [name, ab, ag] :
+       {std::tuple{"ground", 0.344, 0.394}, std::tuple{"frosted", 0.400, 0.454},
+        std::tuple{"etched", 0.493, 0.553}}) {
+    cases.push_back({name, "beckmann", ab, 6, 6, 19, 20, 2.5});
+    cases.push_back({name, "ggx", ag, 6, 6, 19, 20, 2.5});
+  }
+  cases.push_back({"ground", "beckmann", 0.344, 3, 6, 19, 20, 2.5});
+  cases.push_back({"ground", "beckmann", 0.344, 9, 6, 19, 20, 2.5});
+  for (double thickness : {6.0, 3.0, 9.0})
+    cases.push_back({"antiglare", "beckmann", 0.023, thickness, 2, 2, 2, 0.25});
+  cases.push_back({"antiglare", "ggx", 0.027, 6, 2, 2, 2, 0.25});
+  cases.push_back({"antiglare", "beckmann", 0.023, 6, 19, 62, 2, 0.25});
+
+  const Way ways[] = {{"point", false, false}, {"rectangle", true, false}, {"full", true, true}};
+  std::printf(
+      "%d noise draws per case; alpha bias relative and in the fits' sigmas; coverage: "
+      "share of 2-sigma intervals that hold the truth\n\n",
+      repeats);
+  std::printf(
+      "| sample | family | mm | rect px | fit | median s | bias | bias/sigma | coverage "
+      "| chi2/dof |\n|---|---|---|---|---|---|---|---|---|---|\n");
+  for (const Case& c : cases) {
+    const std::vector<Clean> clean = Render(c);
+    for (const Way& w : ways) {
+      std::mt19937_64 rng(12345);
+      std::normal_distribution<double> unit(0, 1);
+      std::vector<double> seconds;
+      double bias = 0, pull = 0, chi2 = 0;
+      int covered = 0, fitted = 0;
+      for (int r = 0; r < repeats; ++r) {
+        std::vector<fitting::Sample> samples;
+        for (const Clean& k : clean) {
+          fitting::Sample s = k.s;
+          // The demo's budget: 0.05 % at the peak (monitor and shot noise), 0.002 absolute in
+          // the tails (the stray light's own shot noise and the dark's).
+          s.sigma = std::hypot(5e-4 * k.value, 2e-3);
+          s.value = k.value + s.sigma * unit(rng);
+          if (w.response && !w.apertures) {
+            auto setup = std::make_shared<fitting::ResponseSetup>(*s.response->setup);
+            setup->bench.source_sr = setup->bench.receiver_sr = 0;
+            s.response->setup = setup;
+          }
+          samples.push_back(s);
+        }
+        fitting::FitOptions o;
+        o.model.family = c.family == "ggx" ? fitting::Family::kGgx : fitting::Family::kBeckmann;
+        o.floor = fitting::Floor::kAuto;
+        o.use_response = w.response;
+        const auto t0 = std::chrono::steady_clock::now();
+        auto f = fitting::Fit(samples, o);
+        seconds.push_back(
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+        if (!f.ok() || f->status == fitting::FitStatus::kFailed || !(f->width.sigma > 0)) continue;
+        ++fitted;
+        bias += (f->width.value - c.alpha) / c.alpha;
+        pull += (f->width.value - c.alpha) / f->width.sigma;
+        covered += std::abs(f->width.value - c.alpha) < 2 * f->width.sigma;
+        chi2 += f->reduced_chi2;
+      }
+      std::sort(seconds.begin(), seconds.end());
+      const double n = std::max(1, fitted);
+      std::printf("| %s | %s | %g | %gx%g | %s | %.3f | %+.2e | %+.2f | %d/%d | %.3g |\n",
+                  c.sample.c_str(), c.family.c_str(), c.thickness_mm, c.rect_w_px, c.rect_h_px,
+                  w.name, seconds[seconds.size() / 2], bias / n, pull / n, covered, repeats,
+                  chi2 / n);
+      std::fflush(stdout);
+    }
+  }
+  return 0;
+}

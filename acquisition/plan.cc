@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "config/toml_reader.h"
+#include "fitting/model.h"
 
 namespace gonio::acquisition {
 
@@ -68,7 +69,8 @@ Result<std::vector<Specimen>> LoadSpecimens(const std::string& path) {
   for (const toml::node& item : *list) {
     const toml::table* t = item.as_table();
     if (t == nullptr) return r.Fail(&item, "each [[specimen]] must be a table");
-    GONIO_TRY(r.Keys(*t, "specimen", {"name", "material", "thickness_mm", "eta"}));
+    GONIO_TRY(
+        r.Keys(*t, "specimen", {"name", "material", "thickness_mm", "eta", "expected_alpha"}));
     Specimen s;
     if (t->get("name") == nullptr) return r.Fail(&item, "specimen without 'name'");
     GONIO_TRY(r.String(*t, "name", &s.name));
@@ -77,12 +79,21 @@ Result<std::vector<Specimen>> LoadSpecimens(const std::string& path) {
     GONIO_TRY(r.String(*t, "material", &s.material));
     GONIO_TRY(r.Number(*t, "thickness_mm", &s.thickness_mm, 0.1, 50));
     GONIO_TRY(r.Number(*t, "eta", &s.eta, 1.0, 4.0));
+    if (t->get("expected_alpha") != nullptr) {
+      double a = 0;
+      GONIO_TRY(r.Number(*t, "expected_alpha", &a, 0.001, 5));
+      s.expected_alpha = a;
+    }
     out.push_back(s);
   }
   return out;
 }
 
 namespace {
+Result<Plan> Finish(Reader& r, const toml::table& root, const PlanContext& context, Plan p);
+Result<Plan> AutoRectangleFrom(Reader& r, const toml::table& rect, const toml::table& root,
+                               const PlanContext& context, Plan p);
+
 Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
                            const PlanContext& context) {
   Reader r(path);
@@ -158,7 +169,10 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
         r.Number(*d, "max_temperature_change_c", &p.darks.max_temperature_change_c, 0.01, 20));
   }
   const toml::table* rect = root["rectangle"].as_table();
-  if (rect == nullptr) return r.Fail(nullptr, "the plan has no [rectangle]");
+  if (rect == nullptr)
+    return r.Fail(nullptr,
+                  "the plan has no [rectangle] table (x, y, width, height, or auto = true)");
+  if (rect->get("auto") != nullptr) return AutoRectangleFrom(r, *rect, root, context, std::move(p));
   GONIO_TRY(r.Keys(*rect, "rectangle", {"x", "y", "width", "height"}));
   std::int64_t v[4] = {-1, -1, 0, 0};
   const char* keys[4] = {"x", "y", "width", "height"};
@@ -177,6 +191,12 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
       << context.image_height << " image";
     return r.Fail(rect, s.str());
   }
+  return Finish(r, root, context, std::move(p));
+}
+
+// The checks every plan passes last, and its text.
+Result<Plan> Finish(Reader& r, const toml::table& root, const PlanContext& context, Plan p) {
+  const toml::table* g = root["geometry"].as_table();
   // Every incidence must be reachable by the sample axis: a plan that cannot do what it says
   // is refused, not quietly thinned (single view angles beyond reach are only skipped).
   const devices::AxisSettings* sample_axis = Axis(context.axes, "sample");
@@ -189,6 +209,138 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
   text << root;
   p.text = text.str();
   return p;
+}
+
+// The worst relative change, over the planned points inside the expected lobe, that averaging
+// over the rectangle makes to the expected value (Beckmann at the specimen's expected width).
+struct RectangleEffect {
+  double worst = 0;
+  double theta_l_deg = 0, theta_v_deg = 0;
+};
+Result<RectangleEffect> EffectOf(const Plan& p, const PlanContext& context, const Rectangle& rc) {
+  fitting::ResponseSetup setup = *context.response;
+  setup.thickness_mm = p.specimen.thickness_mm;
+  setup.rectangle.x = rc.x;
+  setup.rectangle.y = rc.y;
+  setup.rectangle.width = rc.width;
+  setup.rectangle.height = rc.height;
+  const double alpha = *p.specimen.expected_alpha, eta = p.specimen.eta;
+  struct Value {
+    double theta_l, theta_v, point, averaged;
+  };
+  std::vector<Value> values;
+  for (const PlannedPoint& pt : ExpandPoints(p, context)) {
+    if (pt.skipped) continue;
+    auto r = fitting::ComputeResponse(
+        setup, {pt.stage.sample_deg, pt.stage.arm_deg, pt.stage.azimuth_deg}, 64);
+    if (!r.ok()) return r.error();
+    const fitting::ModelSpec beckmann;
+    double sum = 0;
+    for (const auto& ray : r->rays)
+      sum += ray.weight * fitting::MeasurementModel(beckmann, ray.l, ray.v, alpha, 1.0, eta);
+    values.push_back({pt.theta_l_deg, pt.theta_v_deg,
+                      fitting::MeasurementModel(beckmann, r->l0, r->v0, alpha, 1.0, eta),
+                      sum / r->pixels});
+  }
+  RectangleEffect e;
+  for (const Value& v : values) {
+    double peak = 0;  // of the point's incidence
+    for (const Value& o : values)
+      if (o.theta_l == v.theta_l) peak = std::max(peak, o.point);
+    if (!(v.point > 0.1 * peak)) continue;
+    const double change = std::abs(v.averaged / v.point - 1);
+    if (change > e.worst) e = {change, v.theta_l, v.theta_v};
+  }
+  return e;
+}
+
+// [rectangle] auto = true (plan.h, AutoRectangle): rectangles of the given aspect grow from two
+// pixels wide around the centre; the last whose effect stays within tolerance * expected_sigma
+// is the plan's. Widths and heights are even, so that the rectangle is symmetric about the centre
+// pixel corner: an odd one is half a pixel off (0.08 mm on the demo's bench, ~0.04 deg of view,
+// 1.6 % on ground glass's flank). The reason names it, its size at the sphere centre and the
+// first one too large.
+Result<Plan> AutoRectangleFrom(Reader& r, const toml::table& rect, const toml::table& root,
+                               const PlanContext& context, Plan p) {
+  GONIO_TRY(r.Keys(rect, "rectangle",
+                   {"auto", "tolerance", "expected_sigma", "aspect", "centre_x", "centre_y"}));
+  bool on = false;
+  GONIO_TRY(r.Bool(rect, "auto", &on));
+  if (!on)
+    return r.Fail(rect.get("auto"),
+                  "[rectangle] auto = false: give x, y, width and height instead");
+  AutoRectangle a;
+  GONIO_TRY(r.Number(rect, "tolerance", &a.tolerance, 0.01, 100));
+  GONIO_TRY(r.Number(rect, "expected_sigma", &a.expected_sigma, 1e-6, 0.5));
+  GONIO_TRY(r.Number(rect, "aspect", &a.aspect, 0.05, 20));
+  for (const char* key : {"centre_x", "centre_y"})
+    if (rect.get(key) != nullptr) {
+      std::int64_t c = 0;
+      GONIO_TRY(r.Integer(rect, key, &c, 0, 100000));
+      (key[7] == 'x' ? a.centre_x : a.centre_y) = static_cast<int>(c);
+    }
+  if (!context.response)
+    return r.Fail(&rect,
+                  "[rectangle] auto needs the bench's geometry, and the instrument config has no "
+                  "[bench] table");
+  if (!p.specimen.expected_alpha)
+    return r.Fail(&rect, "[rectangle] auto needs the specimen's expected width: give '" +
+                             p.specimen.name + "' an expected_alpha in the specimen catalogue");
+  if (p.side != "transmission")
+    return r.Fail(&rect,
+                  "[rectangle] auto is for transmission plans (the response is traced "
+                  "through the hemisphere)");
+  const fitting::SensorRectangle& region = context.response->rectangle;
+  const int image_w =
+      context.image_width > 0
+          ? context.image_width
+          : (context.response->bench.sensor_width - region.offset_x) / region.binning_h;
+  const int image_h =
+      context.image_height > 0
+          ? context.image_height
+          : (context.response->bench.sensor_height - region.offset_y) / region.binning_v;
+  const int cx = a.centre_x.value_or(image_w / 2), cy = a.centre_y.value_or(image_h / 2);
+  if (cx >= image_w || cy >= image_h)
+    return r.Fail(&rect, "[rectangle] centre (" + std::to_string(cx) + ", " + std::to_string(cy) +
+                             ") is outside the " + std::to_string(image_w) + "x" +
+                             std::to_string(image_h) + " image");
+  const double allowed = a.tolerance * a.expected_sigma;
+  std::optional<std::pair<Rectangle, RectangleEffect>> best, next;
+  for (int w = 2; w <= image_w; w += 2) {
+    const int h = std::max(2, 2 * static_cast<int>(std::lround(a.aspect * w / 2)));
+    const Rectangle rc{cx - w / 2, cy - h / 2, w, h};
+    if (rc.x < 0 || rc.y < 0 || rc.x + w > image_w || rc.y + h > image_h) break;
+    auto e = EffectOf(p, context, rc);
+    if (!e.ok()) return r.Fail(&rect, "[rectangle] auto: " + e.error().message);
+    if (e->worst > allowed && best) {
+      next = {rc, *e};
+      break;
+    }
+    best = {rc, *e};
+    if (e->worst > allowed) break;  // even one pixel wide is too large: that one, and say so
+  }
+  if (!best) return r.Fail(&rect, "[rectangle] auto: no rectangle fits the image");
+  p.rectangle = best->first;
+  p.auto_rectangle = a;
+  const double mm = context.response->bench.mm_per_pixel;
+  std::ostringstream why;
+  why.precision(3);
+  why << "rectangle auto: " << p.rectangle.width << " x " << p.rectangle.height << " px at ("
+      << p.rectangle.x << ", " << p.rectangle.y << "), "
+      << p.rectangle.width * region.binning_h * mm << " x "
+      << p.rectangle.height * region.binning_v * mm
+      << " mm at the sphere centre: its spread of directions changes the expected lobe (Beckmann "
+         "alpha "
+      << *p.specimen.expected_alpha << ") by at most " << 100 * best->second.worst
+      << " % (at theta_l " << best->second.theta_l_deg << ", theta_v " << best->second.theta_v_deg
+      << "), within " << a.tolerance << " x " << 100 * a.expected_sigma << " %";
+  if (next)
+    why << "; the next, " << next->first.width << " x " << next->first.height << " px, by "
+        << 100 * next->second.worst << " %";
+  else if (best->second.worst > allowed)
+    why << " - NOT within it: even two pixels wide is too large for this lobe";
+  p.rectangle_reason = why.str();
+  return Finish(r, root, context, std::move(p));
 }
 }  // namespace
 

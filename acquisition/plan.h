@@ -15,6 +15,7 @@
 #include "common/bench_angles.h"
 #include "common/result.h"
 #include "devices/stage.h"
+#include "fitting/response.h"
 
 namespace gonio::acquisition {
 
@@ -24,6 +25,9 @@ struct Specimen {
   std::string material;
   double thickness_mm = 6;
   double eta = 1.5;
+  // The Beckmann width the specimen is expected to have (the catalogue's), for rectangles chosen
+  // by the plan ([rectangle] auto); nullopt: unknown.
+  std::optional<double> expected_alpha;
 };
 Result<std::vector<Specimen>> LoadSpecimens(const std::string& path);
 
@@ -44,6 +48,18 @@ struct DarkPolicy {
 
 struct Rectangle {
   int x = 0, y = 0, width = 0, height = 0;  // image pixels
+};
+
+// [rectangle] auto = true: the largest rectangle (of the given aspect, centred where asked) whose
+// averaging over its spread of directions changes the specimen's expected lobe by at most
+// `tolerance` times the expected relative sigma of a lobe point, at every planned point within
+// the lobe (above a tenth of its incidence's peak). Walter 2007 section 6: "smaller for
+// less-diffusing samples". Needs the bench's geometry and the specimen's expected width.
+struct AutoRectangle {
+  double tolerance = 0.3;
+  double expected_sigma = 5e-4;  // relative, of a lobe point (the demo's budget at the peak)
+  double aspect = 3;             // height / width
+  std::optional<int> centre_x, centre_y;  // image pixels; default: the image's centre
 };
 
 struct PlannedPoint {
@@ -74,13 +90,18 @@ struct Plan {
   ExposurePolicy exposure;
   DarkPolicy darks;
   Rectangle rectangle;
-  std::string text;  // the file as read, stored with the run
+  std::optional<AutoRectangle> auto_rectangle;  // when the plan chose it: how
+  std::string rectangle_reason;                 // which rectangle, and why (auto only)
+  std::string text;                             // the file as read, stored with the run
 };
 
 struct PlanContext {
   std::vector<Specimen> specimens;
   std::vector<devices::AxisSettings> axes;  // travel limits
   int image_width = 0, image_height = 0;    // 0: not checked
+  // The bench's optics and the camera's region (the rectangle is the plan's), for plans whose
+  // rectangle is chosen by the response ([rectangle] auto); nullopt: the config has no [bench].
+  std::optional<fitting::ResponseSetup> response;
 };
 
 // Parses and validates; errors carry "path:line: what".

@@ -70,7 +70,7 @@ int main(int argc, char** argv) {
   // The soak reads a 64 x 64 region around the rectangle: many frames, little transfer.
   devices::CameraSettings& cs = client.camera;
   if (soak) cs.roi_x = 224, cs.roi_y = 224, cs.roi_width = 64, cs.roi_height = 64;
-  auto opened = daemon::OpenInstrument(client, {{"G1", "glass", 6, 1.51}});
+  auto opened = daemon::OpenInstrument(client, {{"G1", "glass", 6, 1.51, std::nullopt}});
   if (!opened.ok()) {
     std::fprintf(stderr, "cannot open the backends: %s\n", opened.error().message.c_str());
     return 1;

@@ -66,7 +66,7 @@ int main(int argc, char** argv) {
   config::InstrumentConfig client = (*simulated)->ClientConfig();
   client.camera.gain_db = 12;
   for (devices::AxisSettings& a : client.axes) a.speed_deg_s = 30, a.acceleration_deg_s2 = 300;
-  auto inst = daemon::OpenInstrument(client, {{"ground-glass-G1", "glass", 6, 1.51}});
+  auto inst = daemon::OpenInstrument(client, {{"ground-glass-G1", "glass", 6, 1.51, std::nullopt}});
   if (!inst.ok()) {
     std::fprintf(stderr, "api_latency: %s\n", inst.error().ToString().c_str());
     return 1;

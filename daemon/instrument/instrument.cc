@@ -47,18 +47,22 @@ acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
   acquisition::PlanContext ctx;
   ctx.specimens = std::move(specimens);
   ctx.axes = c.axes;
+  if (c.bench) {
+    fitting::ResponseSetup s;
+    s.bench = *c.bench;
+    // The camera's region origin is in sensor pixels; binning applies to both axes.
+    s.rectangle.offset_x = c.camera.roi_x;
+    s.rectangle.offset_y = c.camera.roi_y;
+    s.rectangle.binning_h = s.rectangle.binning_v = std::max(1, c.camera.binning);
+    ctx.response = s;
+  }
   return ctx;
 }
 
 std::string ResponseJsonFor(const config::InstrumentConfig& c, const acquisition::Plan& plan) {
   if (!c.bench) return "";
-  fitting::ResponseSetup s;
-  s.bench = *c.bench;
+  fitting::ResponseSetup s = *PlanContextOf(c, {}).response;
   s.thickness_mm = plan.specimen.thickness_mm;
-  // The camera's region origin is in sensor pixels; binning applies to both axes.
-  s.rectangle.offset_x = c.camera.roi_x;
-  s.rectangle.offset_y = c.camera.roi_y;
-  s.rectangle.binning_h = s.rectangle.binning_v = std::max(1, c.camera.binning);
   s.rectangle.x = plan.rectangle.x;
   s.rectangle.y = plan.rectangle.y;
   s.rectangle.width = plan.rectangle.width;

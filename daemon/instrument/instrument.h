@@ -29,8 +29,9 @@ struct OpenedMonitor {
 // Precondition: c.monitor.enabled.
 Result<OpenedMonitor> OpenMonitor(const config::InstrumentConfig& c);
 
-// What plans are checked against, without opening anything: the specimens and the axes' travel
-// limits; the image size is 0 (not checked).
+// What plans are checked against, without opening anything: the specimens, the axes' travel
+// limits and, with [bench], the optics and the camera's region (for [rectangle] auto); the image
+// size is 0 (not checked).
 acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
                                        std::vector<acquisition::Specimen> specimens);
 

@@ -537,6 +537,8 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     }
     job.run = *run;
     SaveJob(job);  // a restart finds the run through its job
+    if (!plan->rectangle_reason.empty())
+      (void)db_.AddEvent(*run, "rectangle", plan->rectangle_reason);
   }
   const std::int64_t run = *job.run;
   stop_ = false;

@@ -208,6 +208,10 @@ int main(int argc, char** argv) {
     if (!id.ok()) return Fail(id.error());
     run_id = *id;
     std::cout << "run " << run_id << " created in " << db_path << std::endl;
+    if (!plan->rectangle_reason.empty()) {
+      (void)store.AddEvent(run_id, "rectangle", plan->rectangle_reason);
+      std::cout << plan->rectangle_reason << std::endl;
+    }
   } else {
     std::cout << "resuming run " << run_id << std::endl;
   }

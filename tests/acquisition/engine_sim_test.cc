@@ -57,7 +57,7 @@ class EngineOnSim : public ::testing::Test {
                         << geometry << "\n[exposure]\n"
                         << exposure << "\n[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n";
     PlanContext ctx;
-    ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51}};
+    ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51, std::nullopt}};
     ctx.axes = inst.axes;
     ctx.image_width = ctx.image_height = 512;
     auto plan = LoadPlan(path, ctx);

@@ -2,9 +2,12 @@
 // point order is a serpentine; unreachable geometries are skipped with a reason.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <cstdio>
 #include <string>
 
 #include "acquisition/plan.h"
+#include "fitting/model.h"
 
 namespace gonio::acquisition {
 namespace {
@@ -45,7 +48,7 @@ TEST(Plan, BadPlansAreRefusedWithFileAndLine) {
       << Refusal("rect_outside.toml");
   EXPECT_NE(Refusal("unknown_sample.toml")
                 .find("unknown_sample.toml:2: unknown sample 'frosted-F9' (the catalogue has: "
-                      "ground-glass-G1, etched-glass-E1)"),
+                      "ground-glass-G1, etched-glass-E1, antiglare-A1)"),
             std::string::npos)
       << Refusal("unknown_sample.toml");
 }
@@ -139,6 +142,102 @@ TEST(Plan, ReflectionPlansSweepAboutTheSpecularDirectionAndSkipTheSourceBeam) {
   ASSERT_FALSE(sideways.ok());
   EXPECT_NE(sideways.error().message.find("s.toml:3:"), std::string::npos)
       << sideways.error().message;
+}
+
+// [rectangle] auto: the largest rectangle whose spread of directions changes the expected lobe by
+// at most tolerance x expected_sigma. Checked here against the response computed in the test: the
+// chosen one is within the allowance and the next larger one is not; the narrow antiglare lobe
+// gets a far smaller rectangle than ground glass (Walter: "smaller for less-diffusing samples").
+double WorstChange(const Plan& plan, const PlanContext& ctx, double alpha) {
+  fitting::ResponseSetup setup = *ctx.response;
+  setup.rectangle.x = plan.rectangle.x;
+  setup.rectangle.y = plan.rectangle.y;
+  setup.rectangle.width = plan.rectangle.width;
+  setup.rectangle.height = plan.rectangle.height;
+  double worst = 0;
+  for (const PlannedPoint& p : ExpandPoints(plan, ctx)) {
+    auto r = fitting::ComputeResponse(setup, {p.stage.sample_deg, p.stage.arm_deg, 0}, 0);
+    EXPECT_TRUE(r.ok());
+    if (!r.ok()) return 1e9;
+    double avg = 0;
+    for (const auto& ray : r->rays)
+      avg += ray.weight * fitting::MeasurementModel({}, ray.l, ray.v, alpha, 1.0, 1.51);
+    avg /= r->pixels;
+    const double point = fitting::MeasurementModel({}, r->l0, r->v0, alpha, 1.0, 1.51);
+    // The lobe's peak at this incidence: the straight-through (refracted) view.
+    const double tt = std::asin(std::sin(p.theta_l_deg * M_PI / 180) / 1.51);
+    const optics::Vec3<double> snell{-std::sin(tt), 0, -std::cos(tt)};
+    const double peak = fitting::MeasurementModel({}, r->l0, snell, alpha, 1.0, 1.51);
+    if (point > 0.1 * peak) worst = std::max(worst, std::abs(avg / point - 1));
+  }
+  return worst;
+}
+
+TEST(Plan, AnAutoRectangleIsTheLargestThatKeepsTheExpectedLobe) {
+  PlanContext ctx = Context();
+  ctx.response = fitting::ResponseSetup{};
+  ctx.response->bench.mm_per_pixel = 0.04;  // a finer pitch than the demo's, so both lobes fit
+  auto load = [&](const std::string& sample, const std::string& views, const std::string& extra) {
+    return LoadPlanText(
+        "sample = \"" + sample +
+            "\"\n[geometry]\nincidence_deg = [0, 30]\nview_about = \"refracted\"\n" + views +
+            "\n[rectangle]\nauto = true\ntolerance = 1\n" + extra,
+        "auto.toml", ctx);
+  };
+  const std::string glare_views = "view_from_deg = -1\nview_to_deg = 1\nview_step_deg = 0.25";
+  auto ground =
+      load("ground-glass-G1", "view_from_deg = -10\nview_to_deg = 10\nview_step_deg = 2.5", "");
+  // A narrow lobe is measured with less precision per point (1 %) and a square rectangle.
+  auto glare = load("antiglare-A1", glare_views, "aspect = 1\nexpected_sigma = 0.01\n");
+  ASSERT_TRUE(ground.ok()) << ground.error().message;
+  ASSERT_TRUE(glare.ok()) << glare.error().message;
+  EXPECT_NE(ground->rectangle_reason.find("rectangle auto: "), std::string::npos);
+  EXPECT_LT(glare->rectangle.width * glare->rectangle.height,
+            ground->rectangle.width * ground->rectangle.height);
+  std::printf("%s\n%s\n", ground->rectangle_reason.c_str(), glare->rectangle_reason.c_str());
+  for (const auto& [plan, alpha] : {std::pair{&*ground, 0.344}, std::pair{&*glare, 0.023}}) {
+    ASSERT_TRUE(plan->auto_rectangle.has_value());
+    const AutoRectangle& a = *plan->auto_rectangle;
+    const double allowed = a.tolerance * a.expected_sigma;
+    EXPECT_EQ(plan->rectangle_reason.find("NOT within"), std::string::npos)
+        << plan->rectangle_reason;
+    EXPECT_LE(WorstChange(*plan, ctx, alpha), allowed * 1.05) << plan->rectangle_reason;
+    Plan bigger = *plan;
+    bigger.rectangle.width += 2;
+    bigger.rectangle.height =
+        2 * static_cast<int>(std::lround(a.aspect * bigger.rectangle.width / 2));
+    bigger.rectangle.x = 256 - bigger.rectangle.width / 2;
+    bigger.rectangle.y = 256 - bigger.rectangle.height / 2;
+    EXPECT_GT(WorstChange(bigger, ctx, alpha), allowed * 0.95) << plan->rectangle_reason;
+    // Centred on the image (even sizes: symmetric about its centre), of the plan's aspect.
+    EXPECT_EQ(plan->rectangle.x, 256 - plan->rectangle.width / 2);
+    EXPECT_EQ(plan->rectangle.width % 2, 0);
+    EXPECT_EQ(plan->rectangle.height, 2 * std::lround(a.aspect * plan->rectangle.width / 2));
+  }
+  // On the demo's coarser pitch no rectangle keeps the antiglare lobe: the smallest is taken, and
+  // the reason says so.
+  ctx.response->bench.mm_per_pixel = 0.16;
+  auto coarse = load("antiglare-A1", glare_views, "");
+  ASSERT_TRUE(coarse.ok()) << coarse.error().message;
+  EXPECT_EQ(coarse->rectangle.width, 2);
+  EXPECT_NE(coarse->rectangle_reason.find("NOT within it"), std::string::npos)
+      << coarse->rectangle_reason;
+  // Without the bench's geometry, or a specimen without an expected width: refused by line.
+  PlanContext bare = Context();
+  auto no_bench = LoadPlanText(
+      "sample = \"antiglare-A1\"\n[geometry]\nincidence_deg = [0]\n[rectangle]\nauto = true\n",
+      "auto.toml", bare);
+  ASSERT_FALSE(no_bench.ok());
+  EXPECT_NE(no_bench.error().message.find("auto.toml:4: [rectangle] auto needs the bench's"),
+            std::string::npos)
+      << no_bench.error().message;
+  ctx.specimens.push_back({"unknown-U1", "", 6, 1.51, std::nullopt});
+  auto no_alpha = LoadPlanText(
+      "sample = \"unknown-U1\"\n[geometry]\nincidence_deg = [0]\n[rectangle]\nauto = true\n",
+      "auto.toml", ctx);
+  ASSERT_FALSE(no_alpha.ok());
+  EXPECT_NE(no_alpha.error().message.find("give 'unknown-U1' an expected_alpha"), std::string::npos)
+      << no_alpha.error().message;
 }
 
 TEST(Plan, EstimateGrowsWithExposureAndMotion) {

@@ -61,7 +61,7 @@ class DaemonApi : public ::testing::Test {
   // A controller and its API on the same database (a daemon start).
   void StartDaemon(std::optional<bool> resume_interrupted) {
     acquisition::PlanContext ctx;
-    ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51}};
+    ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51, std::nullopt}};
     ctx.axes = inst.axes;
     ctx.image_width = ctx.image_height = 512;
     ControllerOptions co;

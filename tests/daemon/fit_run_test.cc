@@ -32,7 +32,7 @@ TEST(FitRun, AReflectionRunIsRefusedAndNothingIsStored) {
       p.stage = StageTargetsForReflection(30, p.theta_v_deg);
       pts.push_back(p);
     }
-    auto sp = (*db)->EnsureSpecimen({"G1", "glass", 6, 1.51});
+    auto sp = (*db)->EnsureSpecimen({"G1", "glass", 6, 1.51, std::nullopt});
     auto cfg = (*db)->StoreConfig("[camera]\n");
     ASSERT_TRUE(sp.ok() && cfg.ok());
     auto run = (*db)->CreateRun(*sp, *cfg, "side = \"reflection\"", pts);
@@ -82,7 +82,7 @@ TEST(FitRun, ARunsStoredResponseIsUsedAndACorruptOneIsRefusedChangingNothing) {
       pts.push_back(p);
     }
     acquisition::Plan plan;
-    plan.specimen = {"G1", "glass", 6, 1.51};
+    plan.specimen = {"G1", "glass", 6, 1.51, std::nullopt};
     plan.text = "sample = \"G1\"";
     auto run = (*db)->NewRun(plan, "[camera]\n", pts, setup.ToJson());
     ASSERT_TRUE(run.ok()) << run.error().message;

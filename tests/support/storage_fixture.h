@@ -39,7 +39,7 @@ class StorageFixture : public ::testing::Test {
       p.reason = p.skipped ? "test" : "";
       pts.push_back(p);
     }
-    auto sp = s.EnsureSpecimen({"G1", "glass", 6, 1.51});
+    auto sp = s.EnsureSpecimen({"G1", "glass", 6, 1.51, std::nullopt});
     auto cfg = s.StoreConfig("[camera]\n");
     EXPECT_TRUE(sp.ok() && cfg.ok());
     auto run = s.CreateRun(*sp, *cfg, "plan text", pts);

@@ -302,10 +302,15 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
 
 // ---- The instrument response: which samples need it ---------------------------------------
 
-// Each sample's responses, computed once per fit when first needed.
+// Each sample's responses by refinement level (response.h), computed once per fit when first
+// needed, and the levels last chosen (a sample is never coarsened again within a fit).
 struct ResponseCache {
-  std::vector<std::optional<Response>> rectangle, apertures;
-  explicit ResponseCache(std::size_t n) : rectangle(n), apertures(n) {}
+  struct PerSample {
+    std::vector<std::optional<Response>> rectangle, apertures;
+    int rectangle_level = 0, aperture_level = 0;
+  };
+  std::vector<PerSample> of;
+  explicit ResponseCache(std::size_t n) : of(n) {}
 };
 
 // sum_j w_j f(l_j, v_j) |cos theta_lj| / N at k = 1 (eq. R1), in double.
@@ -325,28 +330,65 @@ double NominalAperturesValue(const ModelSpec& m, const Response& r, double width
   return sum;
 }
 
+// A sample's response at a level (nullptr past the finest).
+Result<const Response*> ResponseAt(ResponseCache::PerSample& c, bool apertures, int level,
+                                   const Sample& s, std::size_t i) {
+  const auto lv = apertures ? ApertureLevel(level) : RectangleLevel(level);
+  if (!lv) return static_cast<const Response*>(nullptr);
+  auto& slots = apertures ? c.apertures : c.rectangle;
+  // Sized once for every level, so that pointers to computed responses stay valid.
+  if (slots.empty()) slots.resize(8);
+  if (!slots[level]) {
+    auto r = ComputeAtLevel(*s.response->setup, s.response->at, *lv);
+    if (!r.ok())
+      return Error{r.error().code, Where(s, i) + ": its instrument response: " + r.error().message};
+    slots[level] = std::move(r).value();
+  }
+  return &*slots[level];
+}
+
+// From level `from` on, the coarsest level whose value the next finer one changes by at most
+// `allowed` / 2 (or the finest): a narrow lobe under a large rectangle needs more rays than a
+// wide one.
+Result<int> Refine(const ModelSpec& m, ResponseCache::PerSample& c, bool apertures, int from,
+                   const Sample& s, std::size_t i, double width, double k, double eta,
+                   double allowed) {
+  auto cur = ResponseAt(c, apertures, from, s, i);
+  if (!cur.ok()) return cur.error();
+  double value = k * ResponseValue(m, **cur, width, eta);
+  for (int level = from;; ++level) {
+    auto next = ResponseAt(c, apertures, level + 1, s, i);
+    if (!next.ok()) return next.error();
+    if (*next == nullptr) return level;
+    const double finer = k * ResponseValue(m, **next, width, eta);
+    if (std::abs(finer - value) <= 0.5 * allowed) return level;
+    value = finer;
+  }
+}
+
 // The mode a sample needs at (width, k, eta): the point model while the response changes its
 // prediction by at most tolerance * sigma, the rectangle's rays otherwise, and the apertures on
-// top where they change the nominal value by more than that too.
+// top where they change the nominal value by more than that too; each refined until finer rays
+// change it by at most half that.
 Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, ResponseCache& cache,
                        double width, double k, double eta, double tolerance) {
   if (!s.response || !s.response->setup) return 0;
-  auto& rect = cache.rectangle[i];
-  if (!rect) {
-    auto r = ComputeResponse(*s.response->setup, s.response->at);
-    if (!r.ok())
-      return Error{r.error().code, Where(s, i) + ": its instrument response: " + r.error().message};
-    rect = std::move(r).value();
-  }
-  const double point = k * MeasurementModel(m, rect->l0, rect->v0, width, 1.0, eta);
+  ResponseCache::PerSample& c = cache.of[i];
+  auto coarse = ResponseAt(c, false, 0, s, i);
+  if (!coarse.ok()) return coarse.error();
+  const Response& r0 = **coarse;
+  const double point = k * MeasurementModel(m, r0.l0, r0.v0, width, 1.0, eta);
   const double allowed = tolerance * s.sigma;
-  int mode = std::abs(k * ResponseValue(m, *rect, width, eta) - point) > allowed ? 1 : 0;
-  if (k * std::abs(NominalAperturesValue(m, *rect, width, eta) - point / k) > allowed) mode = 2;
-  if (mode == 2 && !cache.apertures[i]) {
-    auto r = ComputeResponseWithApertures(*s.response->setup, s.response->at);
-    if (!r.ok())
-      return Error{r.error().code, Where(s, i) + ": its instrument response: " + r.error().message};
-    cache.apertures[i] = std::move(r).value();
+  auto level = Refine(m, c, false, c.rectangle_level, s, i, width, k, eta, allowed);
+  if (!level.ok()) return level.error();
+  c.rectangle_level = *level;
+  const Response& rect = *c.rectangle[c.rectangle_level];
+  int mode = std::abs(k * ResponseValue(m, rect, width, eta) - point) > allowed ? 1 : 0;
+  if (k * std::abs(NominalAperturesValue(m, r0, width, eta) - point / k) > allowed) {
+    mode = 2;
+    auto ap = Refine(m, c, true, c.aperture_level, s, i, width, k, eta, allowed);
+    if (!ap.ok()) return ap.error();
+    c.aperture_level = *ap;
   }
   return mode;
 }
@@ -355,11 +397,14 @@ SampleModel BuildModel(const Sample& s, std::size_t i, const ResponseCache& cach
                        double eta) {
   SampleModel sm;
   sm.mode = mode;
-  const Response* r = mode == 2 ? &*cache.apertures[i] : mode == 1 ? &*cache.rectangle[i] : nullptr;
+  const ResponseCache::PerSample& c = cache.of[i];
+  const Response* r = mode == 2   ? &*c.apertures[c.aperture_level]
+                      : mode == 1 ? &*c.rectangle[c.rectangle_level]
+                                  : nullptr;
   if (r == nullptr) {
-    const auto& rect = cache.rectangle[i];
-    sm.g.push_back(rect ? PrecomputeGeometry(rect->l0, rect->v0, eta)
-                        : PrecomputeGeometry(s.light, s.view, eta));
+    const bool has = !c.rectangle.empty() && c.rectangle[0].has_value();
+    sm.g.push_back(has ? PrecomputeGeometry(c.rectangle[0]->l0, c.rectangle[0]->v0, eta)
+                       : PrecomputeGeometry(s.light, s.view, eta));
     sm.w.push_back(1);
     return sm;
   }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <nlohmann/json.hpp>
 #include <optional>
 
@@ -79,14 +80,14 @@ void Basis(const V& w, V* a, V* b) {
 }
 
 // Equal-area rings of directions in the cone of half-angle `half` around w.
-std::vector<V> Cone(const V& w, double half, int rings, int per_ring) {
+std::vector<V> Cone(const V& w, double half, int rings, int per_ring, double phase) {
   V a, b;
   Basis(w, &a, &b);
   std::vector<V> out;
   for (int i = 0; i < rings; ++i) {
     const double theta = half * std::sqrt((i + 0.5) / rings);
     for (int j = 0; j < per_ring; ++j) {
-      const double phi = 2 * optics::kPi * (j + 0.5 * (i % 2)) / per_ring;
+      const double phi = phase + 2 * optics::kPi * (j + 0.5 * (i % 2)) / per_ring;
       out.push_back(Normalize(w * std::cos(theta) +
                               (a * std::cos(phi) + b * std::sin(phi)) * std::sin(theta)));
     }
@@ -267,9 +268,9 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
 
 std::vector<ResponseRay> ApertureCones(const V& l, const V& v, double weight,
                                        double source_half_angle, double receiver_half_angle,
-                                       int rings, int per_ring) {
-  const auto ls = Cone(l, source_half_angle, rings, per_ring);
-  const auto vs = Cone(v, receiver_half_angle, rings, per_ring);
+                                       int rings, int per_ring, double phase) {
+  const auto ls = Cone(l, source_half_angle, rings, per_ring, phase);
+  const auto vs = Cone(v, receiver_half_angle, rings, per_ring, 1.7 * phase);
   const double w = weight / double(ls.size() * vs.size());
   std::vector<ResponseRay> out;
   for (const V& a : ls)
@@ -285,12 +286,34 @@ Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const 
   Response out = *base;
   out.rays.clear();
   out.apertures = true;
-  for (const ResponseRay& ray : base->rays) {
+  const double golden = optics::kPi * (3 - std::sqrt(5.0));
+  for (std::size_t q = 0; q < base->rays.size(); ++q) {
+    const ResponseRay& ray = base->rays[q];
     auto cones = ApertureCones(ray.l, ray.v, ray.weight, base->source_half_angle,
-                               base->receiver_half_angle, rings, per_ring);
+                               base->receiver_half_angle, rings, per_ring, golden * double(q));
     out.rays.insert(out.rays.end(), cones.begin(), cones.end());
   }
   return out;
+}
+
+std::optional<ResponseLevel> RectangleLevel(int level) {
+  static constexpr ResponseLevel kLevels[] = {{64, 0, 0}, {256, 0, 0}, {1024, 0, 0}, {0, 0, 0}};
+  if (level < 0 || level >= static_cast<int>(std::size(kLevels))) return std::nullopt;
+  return kLevels[level];
+}
+
+std::optional<ResponseLevel> ApertureLevel(int level) {
+  // About 5 000 to 30 000 pairs a level: more rays with fewer cone directions each as it goes.
+  static constexpr ResponseLevel kLevels[] = {
+      {16, 3, 6}, {64, 2, 6}, {256, 2, 4}, {1024, 1, 5}, {4096, 1, 3}};
+  if (level < 0 || level >= static_cast<int>(std::size(kLevels))) return std::nullopt;
+  return kLevels[level];
+}
+
+Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition& at,
+                                const ResponseLevel& level) {
+  if (level.rings == 0) return ComputeResponse(setup, at, level.max_rays);
+  return ComputeResponseWithApertures(setup, at, level.rings, level.per_ring, level.max_rays);
 }
 
 }  // namespace gonio::fitting

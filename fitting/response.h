@@ -29,6 +29,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -99,16 +100,30 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
 
 // The response with every pair spread over the source and lens cones: the rectangle traced with
 // at most `max_base_rays` rays, then each ray turned into rings x per_ring directions in each
-// cone (equal-area rings, the product of the two), its weight divided evenly among them.
+// cone (equal-area rings, the product of the two), its weight divided evenly among them. Each
+// ray's cones are turned by the golden angle times its index, so that many rays with few cone
+// directions each still cover the cones evenly between them (large rectangles).
 Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const StagePosition& at,
                                               int rings = 3, int per_ring = 6,
                                               int max_base_rays = 16);
+
+// Successively finer responses of one point, for the fitter's refinement: level 0 is the
+// coarsest; a level is finer than the one before. nullopt past the finest.
+struct ResponseLevel {
+  int max_rays = 0;  // 0: every pixel
+  int rings = 0, per_ring = 0;
+};
+std::optional<ResponseLevel> RectangleLevel(int level);  // rays only
+std::optional<ResponseLevel> ApertureLevel(int level);   // rays and cones
+Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition& at,
+                                const ResponseLevel& level);
 
 // One pair spread over the two cones (what ComputeResponseWithApertures does to each ray): the
 // product of the cones' directions, `weight` divided evenly; directions below the horizon dropped.
 std::vector<ResponseRay> ApertureCones(const optics::Vec3<double>& l, const optics::Vec3<double>& v,
                                        double weight, double source_half_angle,
-                                       double receiver_half_angle, int rings = 3, int per_ring = 6);
+                                       double receiver_half_angle, int rings = 3, int per_ring = 6,
+                                       double phase = 0);
 
 // What a sample carries to rebuild its response: its run's setup (shared) and its stage position.
 struct PointResponse {

@@ -144,11 +144,11 @@ TEST(ResponseTest, AStoredSetupRoundTripsAndBadOnesAreNamed) {
   EXPECT_FALSE(fitting::ComputeResponse(setup, {refl.sample_deg, refl.arm_deg, 0}).ok());
 }
 
-// Samples made with a 3 x 10 mm rectangle's response, with 0.2 % noise, at Walter's incidences.
+// Samples made with a 1 x 3 mm rectangle's response, with 0.2 % noise, at Walter's incidences.
 // The apertures are points here (the generator does not average over them).
 std::vector<fitting::Sample> RectangleSamples(const sim::GroundTruth& truth, double k,
                                               double thickness, std::uint64_t seed) {
-  auto setup = std::make_shared<fitting::ResponseSetup>(CentredSetup(3, 10, thickness));
+  auto setup = std::make_shared<fitting::ResponseSetup>(CentredSetup(1, 3, thickness));
   setup->bench.source_sr = setup->bench.receiver_sr = 0;
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> noise(0, 1);

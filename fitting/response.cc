@@ -297,23 +297,29 @@ Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const 
 }
 
 std::optional<ResponseLevel> RectangleLevel(int level) {
-  static constexpr ResponseLevel kLevels[] = {{64, 0, 0}, {256, 0, 0}, {1024, 0, 0}, {0, 0, 0}};
+  static constexpr ResponseLevel kLevels[] = {{64, 0}, {256, 0}, {1024, 0}, {0, 0}};
   if (level < 0 || level >= static_cast<int>(std::size(kLevels))) return std::nullopt;
   return kLevels[level];
 }
 
 std::optional<ResponseLevel> ApertureLevel(int level) {
-  // About 5 000 to 30 000 pairs a level: more rays with fewer cone directions each as it goes.
+  // Four times the rays and the pairs a level: 5 000 pairs at first, 320 000 at the finest.
   static constexpr ResponseLevel kLevels[] = {
-      {16, 3, 6}, {64, 2, 6}, {256, 2, 4}, {1024, 1, 5}, {4096, 1, 3}};
+      {16, 5000}, {64, 20000}, {256, 80000}, {1024, 320000}};
   if (level < 0 || level >= static_cast<int>(std::size(kLevels))) return std::nullopt;
   return kLevels[level];
 }
 
 Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition& at,
                                 const ResponseLevel& level) {
-  if (level.rings == 0) return ComputeResponse(setup, at, level.max_rays);
-  return ComputeResponseWithApertures(setup, at, level.rings, level.per_ring, level.max_rays);
+  if (level.pairs == 0) return ComputeResponse(setup, at, level.max_rays);
+  auto base = ComputeResponse(setup, at, level.max_rays);
+  if (!base.ok()) return base;
+  // Directions per cone so that rays x directions^2 is about the level's pairs.
+  const double per_cone = std::sqrt(double(level.pairs) / double(base->rays.size()));
+  const int rings = std::max(1, static_cast<int>(std::lround(std::sqrt(per_cone / 6))));
+  const int per_ring = std::max(3, static_cast<int>(std::lround(per_cone / rings)));
+  return ComputeResponseWithApertures(setup, at, rings, per_ring, level.max_rays);
 }
 
 }  // namespace gonio::fitting

@@ -111,7 +111,9 @@ Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const 
 // coarsest; a level is finer than the one before. nullopt past the finest.
 struct ResponseLevel {
   int max_rays = 0;  // 0: every pixel
-  int rings = 0, per_ring = 0;
+  // With the apertures: about this many (light, view) pairs in all, the cone directions per ray
+  // being what the rectangle's rays leave of it (a small rectangle gets dense cones); 0: none.
+  int pairs = 0;
 };
 std::optional<ResponseLevel> RectangleLevel(int level);  // rays only
 std::optional<ResponseLevel> ApertureLevel(int level);   // rays and cones

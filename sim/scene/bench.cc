@@ -152,7 +152,8 @@ double Scene::RateAt(const StageAngles& angles, double x_mm, double y_mm, bool s
       signal = o_.electrons_per_s_per_unit * truth_->BrdfCos(ray->l, ray->v).value_or(0) *
                ray->exit_transmittance;
   } else if (ray->l.z > 0) {
-    const double f = averaged ? ApertureAveragedBtdfCos(*truth_, ray->l, ray->v, o_.apertures, 10)
+    const double f = averaged ? ApertureAveragedBtdfCos(*truth_, ray->l, ray->v, o_.apertures,
+                                                        o_.aperture_points)
                               : truth_->BtdfCos(ray->l, ray->v);
     signal = o_.electrons_per_s_per_unit * f * ray->exit_transmittance;
   }

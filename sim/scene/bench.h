@@ -93,6 +93,9 @@ struct SceneOptions {
   // Average the apertures when they change the nominal value by more than this: 2e-4, below the
   // 3e-4 a ground-glass peak resolves (docs/measurement.md); 0.005 left a 0.1-0.8 % bias there.
   double aperture_tolerance = 2e-4;
+  // Directions per cone where they are averaged (aperture.h's rings): 10 holds a wide lobe's
+  // average to ~1e-4; a narrow one (antiglare) needs ~60 for that, at 36 times the render cost.
+  int aperture_points = 10;
 };
 
 // One pixel's traced ray.

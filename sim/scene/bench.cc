@@ -133,14 +133,17 @@ std::optional<PixelRay> Scene::TraceReflection(const V& source_dir, double phi, 
   return ray;
 }
 
-bool Scene::NeedsApertures(const StageAngles& angles) const {
+int Scene::AperturePoints(const StageAngles& angles) const {
   const NominalGeometry g = Nominal(bench_, angles);
-  if (!g.transmission || g.l.z <= 0) return false;
-  return ApertureMatters(*truth_, g.l, g.v, o_.apertures, o_.aperture_tolerance).matters;
+  if (g.arm_shadows_source || !g.transmission || g.l.z <= 0) return 0;
+  const ApertureDecision d =
+      ApertureMatters(*truth_, g.l, g.v, o_.apertures, o_.aperture_tolerance);
+  if (!d.matters) return 0;
+  return d.relative_change > 0.01 ? o_.aperture_points : 5;
 }
 
 double Scene::RateAt(const StageAngles& angles, double x_mm, double y_mm, bool shadowed,
-                     bool averaged) const {
+                     int aperture_points) const {
   const auto ray = shadowed ? std::nullopt : Trace(angles, x_mm, y_mm);
   if (!ray) {
     return std::hypot(x_mm, y_mm) < bench_.sphere_radius_mm ? o_.stray_lens_e_per_s
@@ -152,9 +155,9 @@ double Scene::RateAt(const StageAngles& angles, double x_mm, double y_mm, bool s
       signal = o_.electrons_per_s_per_unit * truth_->BrdfCos(ray->l, ray->v).value_or(0) *
                ray->exit_transmittance;
   } else if (ray->l.z > 0) {
-    const double f = averaged ? ApertureAveragedBtdfCos(*truth_, ray->l, ray->v, o_.apertures,
-                                                        o_.aperture_points)
-                              : truth_->BtdfCos(ray->l, ray->v);
+    const double f = aperture_points > 0 ? ApertureAveragedBtdfCos(*truth_, ray->l, ray->v,
+                                                                   o_.apertures, aperture_points)
+                                         : truth_->BtdfCos(ray->l, ray->v);
     signal = o_.electrons_per_s_per_unit * f * ray->exit_transmittance;
   }
   return signal + o_.stray_lens_e_per_s;
@@ -164,13 +167,13 @@ double Scene::PixelRate(const StageAngles& angles, const ImageRegion& region, in
                         int row) const {
   const bool shadowed = Nominal(bench_, angles).arm_shadows_source;
   const auto [x, y] = ObjectPointMm(region, col, row);
-  return RateAt(angles, x, y, shadowed, !shadowed && NeedsApertures(angles));
+  return RateAt(angles, x, y, shadowed, AperturePoints(angles));
 }
 
 cv::Mat1d Scene::Render(const StageAngles& angles, const ImageRegion& region) const {
   cv::Mat1d out(region.height, region.width, 0.0);
   const bool shadowed = Nominal(bench_, angles).arm_shadows_source;
-  const bool averaged = !shadowed && NeedsApertures(angles);
+  const int averaged = AperturePoints(angles);
   cv::parallel_for_(cv::Range(0, region.height), [&](const cv::Range& rows) {
     for (int j = rows.start; j < rows.end; ++j) {
       for (int i = 0; i < region.width; ++i) {

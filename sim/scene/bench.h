@@ -93,8 +93,10 @@ struct SceneOptions {
   // Average the apertures when they change the nominal value by more than this: 2e-4, below the
   // 3e-4 a ground-glass peak resolves (docs/measurement.md); 0.005 left a 0.1-0.8 % bias there.
   double aperture_tolerance = 2e-4;
-  // Directions per cone where they are averaged (aperture.h's rings): 10 holds a wide lobe's
-  // average to ~1e-4; a narrow one (antiglare) needs ~60 for that, at 36 times the render cost.
+  // Directions per cone where they are averaged (aperture.h's rings) for a narrow lobe, one whose
+  // peak the apertures change by more than 1 %: 10 holds it to about 1e-3, 64 to 1e-4 (at 40
+  // times the render cost). A wide lobe gets one ring of 5, exact to second order in the cone's
+  // size like every ring rule (about 1e-5 for ground glass), at a quarter of 10's cost.
   int aperture_points = 10;
 };
 
@@ -129,12 +131,14 @@ class Scene {
   double PixelRate(const StageAngles& angles, const ImageRegion& region, int col, int row) const;
 
  private:
+  // `aperture_points`: directions per cone to average over, 0 for none.
   double RateAt(const StageAngles& angles, double x_mm, double y_mm, bool shadowed,
-                bool averaged) const;
+                int aperture_points) const;
   std::optional<PixelRay> TraceReflection(const optics::Vec3<double>& source_dir, double phi,
                                           const optics::Vec3<double>& pinhole,
                                           const optics::Vec3<double>& r) const;
-  bool NeedsApertures(const StageAngles& angles) const;
+  // The directions per cone the geometry's pixels are averaged over (0: none needed).
+  int AperturePoints(const StageAngles& angles) const;
 
   BenchGeometry bench_;
   std::shared_ptr<const GroundTruth> truth_;

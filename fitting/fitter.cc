@@ -333,7 +333,7 @@ double NominalAperturesValue(const ModelSpec& m, const Response& r, double width
 // A sample's response at a level (nullptr past the finest).
 Result<const Response*> ResponseAt(ResponseCache::PerSample& c, bool apertures, int level,
                                    const Sample& s, std::size_t i) {
-  const auto lv = apertures ? ApertureLevel(level) : RectangleLevel(level);
+  const auto lv = apertures ? ApertureLevel(level, c.rectangle_level) : RectangleLevel(level);
   if (!lv) return static_cast<const Response*>(nullptr);
   auto& slots = apertures ? c.apertures : c.rectangle;
   // Sized once for every level, so that pointers to computed responses stay valid.
@@ -381,6 +381,10 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
   const double allowed = tolerance * s.sigma;
   auto level = Refine(m, c, false, c.rectangle_level, s, i, width, k, eta, allowed);
   if (!level.ok()) return level.error();
+  if (*level != c.rectangle_level) {  // the apertures' responses were built on the old rays
+    c.apertures.clear();
+    c.aperture_level = 0;
+  }
   c.rectangle_level = *level;
   const Response& rect = *c.rectangle[c.rectangle_level];
   int mode = std::abs(k * ResponseValue(m, rect, width, eta) - point) > allowed ? 1 : 0;

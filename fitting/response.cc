@@ -297,28 +297,24 @@ Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const 
 }
 
 std::optional<ResponseLevel> RectangleLevel(int level) {
-  static constexpr ResponseLevel kLevels[] = {{64, 0}, {256, 0}, {1024, 0}, {0, 0}};
-  if (level < 0 || level >= static_cast<int>(std::size(kLevels))) return std::nullopt;
-  return kLevels[level];
+  static constexpr int kRays[] = {64, 256, 1024, 0};
+  if (level < 0 || level >= static_cast<int>(std::size(kRays))) return std::nullopt;
+  return ResponseLevel{kRays[level], 0};
 }
 
-std::optional<ResponseLevel> ApertureLevel(int level) {
-  // Four times the rays and the pairs a level: 5 000 pairs at first, 320 000 at the finest.
-  static constexpr ResponseLevel kLevels[] = {
-      {16, 5000}, {64, 20000}, {256, 80000}, {1024, 320000}};
-  if (level < 0 || level >= static_cast<int>(std::size(kLevels))) return std::nullopt;
-  return kLevels[level];
+std::optional<ResponseLevel> ApertureLevel(int level, int rectangle_level) {
+  static constexpr int kConePoints[] = {5, 10, 20, 40, 80};
+  const auto rect = RectangleLevel(rectangle_level);
+  if (!rect || level < 0 || level >= static_cast<int>(std::size(kConePoints))) return std::nullopt;
+  return ResponseLevel{rect->max_rays, kConePoints[level]};
 }
 
 Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition& at,
                                 const ResponseLevel& level) {
-  if (level.pairs == 0) return ComputeResponse(setup, at, level.max_rays);
-  auto base = ComputeResponse(setup, at, level.max_rays);
-  if (!base.ok()) return base;
-  // Directions per cone so that rays x directions^2 is about the level's pairs.
-  const double per_cone = std::sqrt(double(level.pairs) / double(base->rays.size()));
-  const int rings = std::max(1, static_cast<int>(std::lround(std::sqrt(per_cone / 6))));
-  const int per_ring = std::max(3, static_cast<int>(std::lround(per_cone / rings)));
+  if (level.cone_points == 0) return ComputeResponse(setup, at, level.max_rays);
+  // Equal-area rings of at least 5 directions: 1 ring up to 10, then about 6 per ring.
+  const int rings = std::max(1, static_cast<int>(std::lround(std::sqrt(level.cone_points / 6.0))));
+  const int per_ring = std::max(5, level.cone_points / rings);
   return ComputeResponseWithApertures(setup, at, rings, per_ring, level.max_rays);
 }
 

@@ -107,16 +107,17 @@ Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const 
                                               int rings = 3, int per_ring = 6,
                                               int max_base_rays = 16);
 
-// Successively finer responses of one point, for the fitter's refinement: level 0 is the
-// coarsest; a level is finer than the one before. nullopt past the finest.
+// Successively finer responses of one point, for the fitter's refinement. The rectangle's levels
+// trace more rays (64, 256, 1 024, then every pixel); the apertures' levels keep the rectangle's
+// rays (at its level) and spread each over more directions per cone (5, 10, 20, 40, 80; each
+// ray's cones turned by the golden angle). nullopt past the finest.
 struct ResponseLevel {
-  int max_rays = 0;  // 0: every pixel
-  // With the apertures: about this many (light, view) pairs in all, the cone directions per ray
-  // being what the rectangle's rays leave of it (a small rectangle gets dense cones); 0: none.
-  int pairs = 0;
+  int max_rays = 0;     // 0: every pixel
+  int cone_points = 0;  // directions per cone; 0: no apertures
 };
-std::optional<ResponseLevel> RectangleLevel(int level);  // rays only
-std::optional<ResponseLevel> ApertureLevel(int level);   // rays and cones
+std::optional<ResponseLevel> RectangleLevel(int level);
+// The apertures' level `level` on top of the rectangle's `rectangle_level`.
+std::optional<ResponseLevel> ApertureLevel(int level, int rectangle_level);
 Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition& at,
                                 const ResponseLevel& level);
 

@@ -4,6 +4,12 @@
 //   * Input: a span of transmission Samples (sample.h), checked by ValidateSamples. The fitter
 //     minimises sum_i rho(((S_model(l_i, v_i) - value_i) / sigma_i)^2) over the width, the scale k
 //     and (optionally) eta, with rho the identity or a robust loss.
+//   * Samples that carry an instrument response (response.h) are modelled as their rectangle's
+//     mean (eq. R1 of docs/measurement.md) where that changes the prediction by more than
+//     response_tolerance sigma, refined until finer rays change it by less; the others, and
+//     samples without one, by the point model. FitSummary::response says how many and the cost.
+//   * Floor::kFit adds a constant b to the model (stray light); kAuto keeps it only when BIC
+//     prefers it. Each parameter's sigma is split into the samples' statistical part and the rest.
 //   * Parameters stay physical without bounds the solver can hit: the solver sees log(width),
 //     log(k) and, for eta, a logistic map onto (1, 3).
 //   * Derivatives are exact (automatic differentiation through the templated optics layer).

@@ -163,7 +163,8 @@ TEST_F(CameraDriver, ARetrievalLostAfterExposeIsAnErrorAndNotRetried) {
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, ErrorCode::kFailedPrecondition);
   sim_camera->DropFrames(1);
-  ASSERT_TRUE(cam->Expose().ok());
+  const Status exposed = cam->Expose();
+  ASSERT_TRUE(exposed.ok()) << exposed.error().message;
   r = cam->Retrieve();
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, ErrorCode::kTimeout) << r.error().message;

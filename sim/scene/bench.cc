@@ -185,12 +185,13 @@ cv::Mat1d Scene::Render(const StageAngles& angles, const ImageRegion& region) co
   // computed at every 8th sensor pixel and interpolated, which makes a frame 20 times cheaper
   // than averaging every pixel (0.5 s, long enough to hold up the camera's firmware) and changes
   // a 1 x 3 mm rectangle's mean by under 1e-5 (SceneTest.ApertureFactorGridMatchesEveryPixel).
-  // A narrow lobe's pixels are each averaged.
+  // A narrow lobe's pixels are each averaged, and so are those of a truth whose factor jumps by
+  // more than 5 % somewhere (a binned table).
   constexpr int kStep = 8;
   const int c0 = region.offset_x, r0 = region.offset_y;
   const int c1 = std::min(region.sensor_width, c0 + region.width * region.binning_h);
   const int r1 = std::min(region.sensor_height, r0 + region.height * region.binning_v);
-  const bool grid = points == 5;
+  bool grid = points == 5;
   const int nx = grid ? (c1 - c0 - 1) / kStep + 2 : 0, ny = grid ? (r1 - r0 - 1) / kStep + 2 : 0;
   cv::Mat1d factor(std::max(ny, 1), std::max(nx, 1), 1.0);
   if (grid) {
@@ -205,6 +206,11 @@ cv::Mat1d Scene::Render(const StageAngles& angles, const ImageRegion& region) co
             factor(j, i) = ApertureAveragedBtdfCos(*truth_, ray->l, ray->v, o_.apertures, 5) / p;
         }
     });
+    // A truth that is not smooth on the grid's scale (a binned Monte Carlo table: the cones
+    // reach into the next bin) cannot be interpolated: each pixel is averaged instead.
+    double lo = 0, hi = 0;
+    cv::minMaxLoc(factor, &lo, &hi);
+    if (lo < 0.95 || hi > 1.05) grid = false;
   }
   auto factor_at = [&](int col, int row) {
     const double u = double(col - c0) / kStep, v = double(row - r0) / kStep;

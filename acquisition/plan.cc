@@ -218,12 +218,7 @@ struct RectangleEffect {
   double theta_l_deg = 0, theta_v_deg = 0;
 };
 Result<RectangleEffect> EffectOf(const Plan& p, const PlanContext& context, const Rectangle& rc) {
-  fitting::ResponseSetup setup = *context.response;
-  setup.thickness_mm = p.specimen.thickness_mm;
-  setup.rectangle.x = rc.x;
-  setup.rectangle.y = rc.y;
-  setup.rectangle.width = rc.width;
-  setup.rectangle.height = rc.height;
+  const fitting::ResponseSetup setup = *ResponseSetupFor(context, p, rc);
   const double alpha = *p.specimen.expected_alpha, eta = p.specimen.eta;
   struct Value {
     double theta_l, theta_v, point, averaged;
@@ -343,6 +338,18 @@ Result<Plan> AutoRectangleFrom(Reader& r, const toml::table& rect, const toml::t
   return Finish(r, root, context, std::move(p));
 }
 }  // namespace
+
+std::optional<fitting::ResponseSetup> ResponseSetupFor(const PlanContext& context, const Plan& plan,
+                                                       const Rectangle& rectangle) {
+  if (!context.response) return std::nullopt;
+  fitting::ResponseSetup s = *context.response;
+  s.thickness_mm = plan.specimen.thickness_mm;
+  s.rectangle.x = rectangle.x;
+  s.rectangle.y = rectangle.y;
+  s.rectangle.width = rectangle.width;
+  s.rectangle.height = rectangle.height;
+  return s;
+}
 
 Result<Plan> LoadPlan(const std::string& path, const PlanContext& context) {
   auto parsed = config::ParseTomlFile(path);

@@ -104,6 +104,11 @@ struct PlanContext {
   std::optional<fitting::ResponseSetup> response;
 };
 
+// What rebuilds the instrument response of a run of `plan` measured through `rectangle`: the
+// context's bench and camera region with the specimen's thickness; nullopt without a bench.
+std::optional<fitting::ResponseSetup> ResponseSetupFor(const PlanContext& context, const Plan& plan,
+                                                       const Rectangle& rectangle);
+
 // Parses and validates; errors carry "path:line: what".
 Result<Plan> LoadPlan(const std::string& path, const PlanContext& context);
 // The same from text (an API request, a run's stored plan); errors carry "name:line: what".

@@ -60,14 +60,8 @@ acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
 }
 
 std::string ResponseJsonFor(const config::InstrumentConfig& c, const acquisition::Plan& plan) {
-  if (!c.bench) return "";
-  fitting::ResponseSetup s = *PlanContextOf(c, {}).response;
-  s.thickness_mm = plan.specimen.thickness_mm;
-  s.rectangle.x = plan.rectangle.x;
-  s.rectangle.y = plan.rectangle.y;
-  s.rectangle.width = plan.rectangle.width;
-  s.rectangle.height = plan.rectangle.height;
-  return s.ToJson();
+  const auto s = acquisition::ResponseSetupFor(PlanContextOf(c, {}), plan, plan.rectangle);
+  return s ? s->ToJson() : "";
 }
 
 Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,

@@ -347,9 +347,10 @@ TEST_F(EngineDriftingLamp, MonitorNormalisationRemovesLampDrift) {
 // Issue #16's budget: with the demo's lamp (drift, slow wander and flicker, config/sim.toml), each
 // stored sigma is its components in quadrature (stat, lamp, monitor; the export carries them),
 // and two runs of one plan differ point by point about as those sigmas say: the rms of the pulls
-// (v1 - v2) / sqrt(s1^2 + s2^2) lies within 0.7-1.5. 27 pairs give it a sampling error of ~0.14;
-// six runs of this test gave 0.84-1.42 (mean 1.14), so about 10 % of the scatter is still not in
-// the budget (docs/measurement.md). PULLS=1 prints every pair.
+// (v1 - v2) / sqrt(s1^2 + s2^2) lies near 1. 27 pairs give it a sampling error of ~0.14;
+// eleven runs gave 0.76-1.42, so about 10 % of the scatter is still not in
+// the budget (docs/measurement.md). A CI run under load gave one outside 1.5; the bounds are now
+// set from the chi-square quantiles (below). PULLS=1 prints every pair.
 class EngineOnTheDemoLamp : public EngineOnSim {
  protected:
   sim::LampOptions LampOpts() override { return {}; }  // 1 %/h drift, 0.5 % wander, 0.2 % flicker
@@ -370,7 +371,7 @@ TEST_F(EngineOnTheDemoLamp, SigmaIsItsComponentsAndRepeatedRunsAgreeWithinIt) {
   const auto b = measure();
   ASSERT_EQ(a.size(), 27u);
   ASSERT_EQ(b.size(), 27u);
-  double z2 = 0, lamp = 0, monitor = 0;
+  double z2 = 0, z2_stat = 0, lamp = 0, monitor = 0;
   for (std::size_t k = 0; k < a.size(); ++k) {
     for (const auto* r : {&a[k], &b[k]}) {
       const Measurement& m = r->m;
@@ -383,6 +384,9 @@ TEST_F(EngineOnTheDemoLamp, SigmaIsItsComponentsAndRepeatedRunsAgreeWithinIt) {
     }
     const double z = (a[k].m.value - b[k].m.value) / std::hypot(a[k].m.sigma, b[k].m.sigma);
     z2 += z * z;
+    const double z_stat =
+        (a[k].m.value - b[k].m.value) / std::hypot(a[k].m.sigma_stat, b[k].m.sigma_stat);
+    z2_stat += z_stat * z_stat;
     if (std::getenv("PULLS"))
       std::printf("%5.1f %6.1f t %.4g/%.4g z %6.2f  stat %.2g lamp %.2g mon %.2g (rel to value)\n",
                   a[k].point.theta_l_deg, a[k].point.theta_v_deg, a[k].m.exposure_s,
@@ -390,10 +394,18 @@ TEST_F(EngineOnTheDemoLamp, SigmaIsItsComponentsAndRepeatedRunsAgreeWithinIt) {
                   a[k].m.sigma_lamp / a[k].m.value, a[k].m.sigma_monitor / a[k].m.value);
   }
   const double rms = std::sqrt(z2 / static_cast<double>(a.size()));
-  std::printf("27 pairs: rms pull %.3f; largest lamp share %.2f, monitor share %.2f\n", rms, lamp,
-              monitor);
-  EXPECT_GT(rms, 0.7);
-  EXPECT_LT(rms, 1.5);
+  const double rms_stat = std::sqrt(z2_stat / static_cast<double>(a.size()));
+  std::printf(
+      "27 pairs: rms pull %.3f (%.3f with the statistical sigma alone); largest lamp share "
+      "%.2f, monitor share %.2f\n",
+      rms, rms_stat, lamp, monitor);
+  // 27 unit-normal pulls give an rms within 0.60-1.43 with 99.8 % probability; the upper
+  // bound allows the ~10 % of scatter the budget still leaves out (docs/measurement.md). The
+  // statistical sigma alone gave 1.4-2.0 in the same runs: the instrument terms must carry a
+  // real share of it, which the ratio asserts (observed 0.53-0.67).
+  EXPECT_GT(rms, 0.6);
+  EXPECT_LT(rms, 1.6);
+  EXPECT_LT(rms / rms_stat, 0.8);
   // Both instrument terms are present somewhere in the run (not zero by construction).
   EXPECT_GT(lamp, 0.2);
   EXPECT_GT(monitor, 0.2);

@@ -281,15 +281,13 @@ Status ModbusStageController::MoveTo(const std::vector<std::pair<std::string, do
       return InvalidArgument("axis '" + name + "': target " + std::to_string(deg) +
                              " deg is outside the travel limits [" + std::to_string(a.min_deg) +
                              ", " + std::to_string(a.max_deg) + "]; nothing moved");
-    if (a.backlash_overshoot_deg > 0 && deg - a.backlash_overshoot_deg < a.min_deg)
-      return InvalidArgument("axis '" + name + "': target " + std::to_string(deg) +
-                             " deg leaves no room below it to approach from below (overshoot " +
-                             std::to_string(a.backlash_overshoot_deg) + " deg); nothing moved");
     list.push_back(&a);
     goal.push_back(deg);
   }
   // Phase 1: axes coming from above first go below their target by the overshoot; the others go
-  // straight there. Phase 2: the overshooting axes come up to the target.
+  // straight there. Phase 2: the overshooting axes come up to the target. Within the overshoot of
+  // the lower limit the dip stops at the limit (a shorter approach from below); a target at the
+  // limit itself is reached from above, its backlash uncompensated (devices/stage.h).
   std::vector<const AxisSettings*> first_axes, second_axes;
   std::vector<double> first_goal, second_goal;
   for (std::size_t k = 0; k < list.size(); ++k) {
@@ -298,9 +296,10 @@ Status ModbusStageController::MoveTo(const std::vector<std::pair<std::string, do
     if (!st.ok()) return st.error();
     if (st->alarm != 0) return Error{ErrorCode::kDeviceFault, AlarmText(a, st->alarm)};
     const bool from_above = st->position_deg > goal[k] + 0.5 / a.steps_per_degree;
-    if (a.backlash_overshoot_deg > 0 && from_above) {
+    const double dip = std::max(a.min_deg, goal[k] - a.backlash_overshoot_deg);
+    if (a.backlash_overshoot_deg > 0 && from_above && dip < goal[k] - 0.5 / a.steps_per_degree) {
       first_axes.push_back(&a);
-      first_goal.push_back(goal[k] - a.backlash_overshoot_deg);
+      first_goal.push_back(dip);
       second_axes.push_back(&a);
       second_goal.push_back(goal[k]);
     } else {

@@ -23,8 +23,12 @@ class Reader {
   Error Fail(const toml::node* node, const std::string& what) const {
     std::ostringstream s;
     s << path_;
-    if (node != nullptr) s << ":" << node->source().begin.line;
-    s << ": " << what;
+    // Something missing has no line of its own: the message says the whole file was searched.
+    if (node != nullptr && node->source().begin.line > 0)
+      s << ":" << node->source().begin.line << ": ";
+    else
+      s << ": (whole file) ";
+    s << what;
     return Error{ErrorCode::kInvalidArgument, s.str()};
   }
 

@@ -23,7 +23,8 @@ struct AxisSettings {
   double degrees_at_zero = 0;
   double min_deg = -180, max_deg = 180;  // software travel limits, inclusive
   // Approach every target from below, overshooting by this much first when coming from above
-  // (0: no compensation). It must exceed the stage's backlash.
+  // (0: no compensation). It must exceed the stage's backlash. Within the overshoot of min_deg
+  // the dip stops at min_deg; a target at min_deg itself is reached from above (uncompensated).
   double backlash_overshoot_deg = 0;
   double speed_deg_s = 10, acceleration_deg_s2 = 50;
   double tolerance_deg = 0.005;  // readback must agree with the target within this

@@ -4,8 +4,11 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
+#include <charconv>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <random>
 #include <sstream>
 
@@ -43,14 +46,20 @@ const char* CodeName(int status) {
       return "not_found";
     case 409:
       return "conflict";
+    case 413:
+      return "too_large";
+    case 503:
+      return "unavailable";
     default:
       return "internal";
   }
 }
 
+// Bytes that are not UTF-8 (a stored plan's text, a file name in a message) are replaced, so
+// that a reply is always valid JSON and never an exception.
 void Reply(httplib::Response& res, int status, const json& body) {
   res.status = status;
-  res.set_content(body.dump(), kJson);
+  res.set_content(body.dump(-1, ' ', false, json::error_handler_t::replace), kJson);
 }
 
 void ReplyError(httplib::Response& res, int status, const std::string& message) {
@@ -90,7 +99,53 @@ std::optional<json> Body(const httplib::Request& req, httplib::Response& res) {
   return j;
 }
 
-std::int64_t IdOf(const httplib::Request& req) { return std::stoll(req.matches[1].str()); }
+// The path's id ({id}: digits only, by the route's pattern), or a 400 naming it when it does not
+// fit in 64 bits.
+std::optional<std::int64_t> IdOf(const httplib::Request& req, httplib::Response& res,
+                                 const char* what) {
+  const std::string text = req.matches[1].str();
+  std::int64_t id = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), id);
+  if (ec != std::errc() || end != text.data() + text.size()) {
+    ReplyError(res, 400,
+               std::string("the ") + what + " id '" + text.substr(0, 32) +
+                   "' is not a number of at most 18 digits");
+    return std::nullopt;
+  }
+  return id;
+}
+
+// An optional body field of one JSON type, or a 400 naming the field and the type it needs.
+std::optional<std::string> StringField(const json& body, const char* name, std::string fallback,
+                                       httplib::Response& res) {
+  if (!body.contains(name)) return fallback;
+  if (!body[name].is_string()) {
+    ReplyError(res, 400, std::string("\"") + name + "\" must be a string");
+    return std::nullopt;
+  }
+  return body[name].get<std::string>();
+}
+std::optional<bool> BoolField(const json& body, const char* name, bool fallback,
+                              httplib::Response& res) {
+  if (!body.contains(name)) return fallback;
+  if (!body[name].is_boolean()) {
+    ReplyError(res, 400, std::string("\"") + name + "\" must be true or false");
+    return std::nullopt;
+  }
+  return body[name].get<bool>();
+}
+std::optional<int> IntField(const json& body, const char* name, int fallback, int lo, int hi,
+                            httplib::Response& res) {
+  if (!body.contains(name)) return fallback;
+  const json& v = body[name];
+  if (!v.is_number_integer() || v.get<std::int64_t>() < lo || v.get<std::int64_t>() > hi) {
+    ReplyError(res, 400,
+               std::string("\"") + name + "\" must be an integer " + std::to_string(lo) + ".." +
+                   std::to_string(hi));
+    return std::nullopt;
+  }
+  return static_cast<int>(v.get<std::int64_t>());
+}
 
 }  // namespace
 
@@ -141,6 +196,19 @@ Result<std::unique_ptr<ApiServer>> ApiServer::Start(Controller& controller, cons
   if (!reader.ok()) return reader.error();
   s->reader_ = std::move(*reader);
   s->server_ = std::make_unique<httplib::Server>();
+  // Event streams hold a thread each for as long as they are open: the pool has room for every
+  // stream the API admits and kRequestThreads more, so requests are never queued behind streams.
+  const int threads = o.max_stream_clients + kRequestThreads;
+  s->server_->new_task_queue = [threads] {
+    return new httplib::ThreadPool(static_cast<std::size_t>(threads));
+  };
+  // Bounds on what a request may cost: one request per connection (a body refused before it is
+  // read - 401 - is dropped with the connection, never parsed as a next request), and bodies of
+  // at most max_body_bytes (413). The request line and each header are bounded by cpp-httplib
+  // (8 KiB, 414/400), but only after it has read them: docs/api.md says so.
+  s->server_->set_keep_alive_max_count(1);
+  s->server_->set_payload_max_length(o.max_body_bytes);
+  s->server_->set_read_timeout(5, 0);
   s->Routes();
   if (o.port == 0) {
     s->port_ = s->server_->bind_to_any_port(o.host);
@@ -189,20 +257,32 @@ void ApiServer::RouteGuards() {
     }
     return httplib::Server::HandlerResponse::Unhandled;
   });
-  srv.set_error_handler([](const httplib::Request& req, httplib::Response& res) {
+  srv.set_error_handler([this](const httplib::Request& req, httplib::Response& res) {
     if (res.status == 404 && res.body.empty())
       ReplyError(res, 404, "no endpoint " + req.method + " " + req.path + " (see docs/api.md)");
+    if (res.status == 413 && res.body.empty())
+      ReplyError(res, 413,
+                 "the body is larger than " + std::to_string(o_.max_body_bytes) + " bytes");
+    if (res.status == 414 && res.body.empty())
+      ReplyError(res, 414, "the request line is longer than 8192 bytes");
   });
+  // Anything a handler did not expect: logged with a number, and the client gets the number,
+  // never the exception's text.
   srv.set_exception_handler(
-      [](const httplib::Request&, httplib::Response& res, std::exception_ptr ep) {
-        std::string what = "unknown";
+      [](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
+        static std::atomic<long> incidents{0};
+        const long n = ++incidents;
+        std::string what = "unknown exception";
         try {
           std::rethrow_exception(ep);
         } catch (const std::exception& e) {
           what = e.what();
         } catch (...) {
         }
-        ReplyError(res, 500, "internal error: " + what);
+        std::cerr << "goniod: API internal error #" << n << " on " << req.method << " " << req.path
+                  << ": " << what << "\n";
+        ReplyError(res, 500,
+                   "internal error #" + std::to_string(n) + " (goniod's log has the details)");
       });
 }
 
@@ -220,7 +300,9 @@ void ApiServer::RouteJobs() {
     Reply(res, 200, {{"jobs", list}});
   });
   srv.Get(R"(/api/v1/jobs/(\d+))", [&c](const httplib::Request& req, httplib::Response& res) {
-    auto j = c.GetJob(IdOf(req));
+    const auto id = IdOf(req, res, "job");
+    if (!id) return;
+    auto j = c.GetJob(*id);
     if (!j.ok()) return ReplyError(res, j.error());
     Reply(res, 200, ToJson(*j));
   });
@@ -229,19 +311,22 @@ void ApiServer::RouteJobs() {
     if (!body) return;
     if (!body->contains("plan") || !(*body)["plan"].is_string())
       return ReplyError(res, 400, "the body needs \"plan\": the plan's TOML text");
-    const std::string name = body->value("name", std::string("plan"));
-    const int repeat = body->value("repeat", 1);
-    if (repeat < 1 || repeat > 1000) return ReplyError(res, 400, "\"repeat\" must be 1..1000");
+    const auto name = StringField(*body, "name", "plan", res);
+    if (!name) return;
+    const auto repeat = IntField(*body, "repeat", 1, 1, 1000, res);
+    if (!repeat) return;
     json jobs = json::array();
-    for (int k = 0; k < repeat; ++k) {
-      auto j = c.Submit(name, (*body)["plan"].get<std::string>());
+    for (int k = 0; k < *repeat; ++k) {
+      auto j = c.Submit(*name, (*body)["plan"].get<std::string>());
       if (!j.ok()) return ReplyError(res, j.error());
       jobs.push_back(ToJson(*j));
     }
-    Reply(res, 201, repeat == 1 ? jobs[0] : json{{"jobs", jobs}});
+    Reply(res, 201, *repeat == 1 ? jobs[0] : json{{"jobs", jobs}});
   });
   srv.Delete(R"(/api/v1/jobs/(\d+))", [&c](const httplib::Request& req, httplib::Response& res) {
-    auto j = c.Cancel(IdOf(req));
+    const auto id = IdOf(req, res, "job");
+    if (!id) return;
+    auto j = c.Cancel(*id);
     if (!j.ok()) return ReplyError(res, j.error());
     Reply(res, 200, ToJson(*j));
   });
@@ -249,9 +334,13 @@ void ApiServer::RouteJobs() {
            [&c](const httplib::Request& req, httplib::Response& res) {
              auto body = Body(req, res);
              if (!body) return;
-             if (!body->contains("position") || !(*body)["position"].is_number_integer())
+             const auto id = IdOf(req, res, "job");
+             if (!id) return;
+             if (!body->contains("position"))
                return ReplyError(res, 400, "the body needs \"position\": an integer (0 = next)");
-             Status s = c.Move(IdOf(req), (*body)["position"].get<int>());
+             const auto position = IntField(*body, "position", 0, 0, 1'000'000, res);
+             if (!position) return;
+             Status s = c.Move(*id, *position);
              if (!s.ok()) return ReplyError(res, s.error());
              json list = json::array();
              for (const Job& j : c.Jobs()) list.push_back(ToJson(j));
@@ -280,16 +369,19 @@ void ApiServer::RouteSchedules() {
         plans[k] = v.get<std::string>();
       }
     }
-    const std::string name = body->value("name", std::string("schedule"));
+    const auto name = StringField(*body, "name", "schedule", res);
+    if (!name) return;
+    const auto dry_run = BoolField(*body, "dry_run", false, res);
+    if (!dry_run) return;
     // Estimates price each point at what the newest finished run of the specimen needed.
     auto history = [this](const std::string& specimen) {
       auto h = reader_->LatestExposures(specimen);
       return h.ok() ? *h : std::nullopt;
     };
     auto schedule =
-        ParseSchedule((*body)["schedule"].get<std::string>(), name, plans, c.context(), history);
+        ParseSchedule((*body)["schedule"].get<std::string>(), *name, plans, c.context(), history);
     if (!schedule.ok()) return ReplyError(res, schedule.error());
-    if (body->value("dry_run", false)) {
+    if (*dry_run) {
       json steps = json::array();
       for (const ScheduleEntry& e : schedule->jobs) {
         json step{{"plan", e.plan_name},
@@ -343,7 +435,9 @@ void ApiServer::RouteRuns() {
     Reply(res, 200, {{"runs", list}});
   });
   srv.Get(R"(/api/v1/runs/(\d+))", [this](const httplib::Request& req, httplib::Response& res) {
-    auto info = reader_->GetRun(IdOf(req));
+    const auto id = IdOf(req, res, "run");
+    if (!id) return;
+    auto info = reader_->GetRun(*id);
     if (!info.ok()) return ReplyError(res, 404, info.error().message);
     auto rows = reader_->Measurements(info->id);
     if (!rows.ok()) return ReplyError(res, rows.error());
@@ -372,11 +466,12 @@ void ApiServer::RouteRuns() {
     Reply(res, 200, o);
   });
   srv.Get(R"(/api/v1/runs/(\d+)/csv)", [this](const httplib::Request& req, httplib::Response& res) {
-    const std::int64_t id = IdOf(req);
-    if (auto info = reader_->GetRun(id); !info.ok())
+    const auto id = IdOf(req, res, "run");
+    if (!id) return;
+    if (auto info = reader_->GetRun(*id); !info.ok())
       return ReplyError(res, 404, info.error().message);
     std::ostringstream text;
-    Status s = reader_->ExportCsv(id, text);
+    Status s = reader_->ExportCsv(*id, text);
     if (!s.ok()) return ReplyError(res, s.error());
     res.status = 200;
     res.set_content(text.str(), "text/csv");
@@ -388,10 +483,11 @@ void ApiServer::RouteFits() {
   httplib::Server& srv = *server_;
   srv.Get(R"(/api/v1/runs/(\d+)/fits)",
           [this](const httplib::Request& req, httplib::Response& res) {
-            const std::int64_t id = IdOf(req);
-            if (auto info = reader_->GetRun(id); !info.ok())
+            const auto id = IdOf(req, res, "run");
+            if (!id) return;
+            if (auto info = reader_->GetRun(*id); !info.ok())
               return ReplyError(res, 404, info.error().message);
-            auto fits = reader_->FitResults(id);
+            auto fits = reader_->FitResults(*id);
             if (!fits.ok()) return ReplyError(res, fits.error());
             json list = json::array();
             for (const auto& f : *fits)
@@ -415,7 +511,9 @@ void ApiServer::RouteFits() {
                  models.push_back(m.get<std::string>());
                }
              }
-             auto fits = FitRun(*reader_, IdOf(req), models);
+             const auto id = IdOf(req, res, "run");
+             if (!id) return;
+             auto fits = FitRun(*reader_, *id, models);
              if (!fits.ok()) return ReplyError(res, fits.error());
              json list = json::array();
              for (const RunFit& f : *fits) {
@@ -434,18 +532,27 @@ void ApiServer::RouteEvents() {
   Controller& c = *controller_;
   // Server-sent events: every event after ?after=N (default: only new ones), as
   // "id: N\nevent: type\ndata: {json}\n\n", with a comment line every 15 s to keep it open.
-  srv.Get("/api/v1/events", [&c](const httplib::Request& req, httplib::Response& res) {
+  srv.Get("/api/v1/events", [this, &c](const httplib::Request& req, httplib::Response& res) {
     std::int64_t after = c.events().Last();
     if (req.has_param("after")) {
-      try {
-        after = std::stoll(req.get_param_value("after"));
-      } catch (const std::exception&) {
+      const std::string text = req.get_param_value("after");
+      const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), after);
+      if (ec != std::errc() || end != text.data() + text.size())
         return ReplyError(res, 400, "?after= must be an event number");
-      }
+    }
+    // A bounded number of streams, each holding a thread (ApiOptions::max_stream_clients).
+    if (streams_.fetch_add(1) >= o_.max_stream_clients) {
+      streams_.fetch_sub(1);
+      res.set_header("Retry-After", "5");
+      return ReplyError(res, 503,
+                        "already " + std::to_string(o_.max_stream_clients) +
+                            " event-stream clients (goniod's limit); close one or poll "
+                            "/api/v1/status");
     }
     res.set_header("Cache-Control", "no-cache");
     res.set_chunked_content_provider(
-        "text/event-stream", [&c, after, idle = 0](std::size_t, httplib::DataSink& sink) mutable {
+        "text/event-stream",
+        [&c, after, idle = 0](std::size_t, httplib::DataSink& sink) mutable {
           if (c.events().closed()) {
             sink.done();
             return true;
@@ -461,7 +568,8 @@ void ApiServer::RouteEvents() {
             after = e.seq;
           }
           return sink.write(out.data(), out.size());
-        });
+        },
+        [this](bool) { streams_.fetch_sub(1); });
   });
 }
 

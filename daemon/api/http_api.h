@@ -8,11 +8,15 @@
 //   401 a mutating call without the right token
 //   404 unknown run, job or path
 //   409 not now (pause when idle, cancel a running job)
-//   500 a storage error
+//   413 a body over max_body_bytes
+//   500 a storage error, or an internal error (numbered; the text goes to the log only)
+//   503 max_stream_clients event streams are already open
 #pragma once
 
+#include <atomic>
 #include <memory>
 #include <string>
+#include <thread>
 
 #include "acquisition/storage.h"
 #include "common/result.h"
@@ -26,9 +30,11 @@ namespace gonio::daemon {
 
 struct ApiOptions {
   std::string host = "127.0.0.1";
-  int port = 8470;      // 0: any free port (tests)
-  std::string token;    // required for mutating calls; never empty
-  std::string db_path;  // the runs database, opened again read-side for the API's queries
+  int port = 8470;              // 0: any free port (tests)
+  std::string token;            // required for mutating calls; never empty
+  std::string db_path;          // the runs database, opened again read-side for the API's queries
+  int max_stream_clients = 16;  // open event streams; more get 503
+  std::size_t max_body_bytes = 4u << 20;  // a schedule with its plans fits many times over
 };
 
 class ApiServer {
@@ -59,6 +65,8 @@ class ApiServer {
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
   int port_ = 0;
+  std::atomic<int> streams_{0};  // open event streams
+  static constexpr int kRequestThreads = 8;
 };
 
 // A token for a new token file: 32 hex digits from the system's random source.

@@ -27,12 +27,14 @@
 #include <iomanip>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 #include <thread>
 
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "common/text.h"
 #include "daemon/schedule/schedule.h"
 
 namespace {
@@ -229,15 +231,21 @@ class Ctl {
   double timeout_s_;
 };
 
-std::string ReadText(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
+// A file's text for a request body: read as bytes and refused (path:line:column) when it is not
+// UTF-8, before any JSON is built from it.
+std::optional<std::string> ReadText(const std::string& path) {
+  auto text = gonio::ReadUtf8File(path);
+  if (!text.ok()) {
+    std::cerr << "gonioctl: " << text.error().message << "\n";
+    return std::nullopt;
+  }
+  return std::move(text).value();
 }
 
 int Submit(Ctl& ctl, const std::string& plan_path, int repeat, bool wait_after) {
-  const json body{{"name", plan_path}, {"plan", ReadText(plan_path)}, {"repeat", repeat}};
+  const auto plan = ReadText(plan_path);
+  if (!plan) return 2;
+  const json body{{"name", plan_path}, {"plan", *plan}, {"repeat", repeat}};
   const int rc = ctl.Print(ctl.api().Post("/api/v1/jobs", body), [](const json& j) {
     auto one = [](const json& x) {
       std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
@@ -273,7 +281,9 @@ int Schedule(Ctl& ctl, const std::string& schedule_path, bool dry_run, bool wait
   // The daemon validates everything; here only the plan files are found (by the schedule
   // module's own reading of it) and read, relative to the schedule, with the schedule's line
   // when one is missing.
-  const std::string text = ReadText(schedule_path);
+  const auto read = ReadText(schedule_path);
+  if (!read) return 2;
+  const std::string& text = *read;
   auto refs = gonio::daemon::PlanReferences(text, schedule_path);
   if (!refs.ok()) {
     std::cerr << "gonioctl: " << refs.error().message << "\n";
@@ -288,7 +298,9 @@ int Schedule(Ctl& ctl, const std::string& schedule_path, bool dry_run, bool wait
                 << "': cannot read " << file.string() << "\n";
       return 2;
     }
-    plans[ref.name] = ReadText(file.string());
+    const auto plan = ReadText(file.string());
+    if (!plan) return 2;
+    plans[ref.name] = *plan;
   }
   const json body{
       {"name", schedule_path}, {"schedule", text}, {"plans", plans}, {"dry_run", dry_run}};
@@ -446,7 +458,7 @@ int Plot(Ctl& ctl, std::int64_t id, PlotOptions o) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int Main(int argc, char** argv) {
   CLI::App app{"gonioctl: control goniod"};
   app.require_subcommand(1);
   std::string url = "http://127.0.0.1:8470", token_file;
@@ -543,4 +555,16 @@ int main(int argc, char** argv) {
   }
   if (*wait) return ctl.WaitIdle();
   return 2;
+}
+
+// Nothing a user passes makes gonioctl abort: what escapes is reported and exits 1.
+int main(int argc, char** argv) {
+  try {
+    return Main(argc, argv);
+  } catch (const std::exception& e) {
+    std::cerr << "gonioctl: internal error: " << e.what() << "\n";
+  } catch (...) {
+    std::cerr << "gonioctl: internal error\n";
+  }
+  return 1;
 }

@@ -51,6 +51,16 @@ TEST(Plan, BadPlansAreRefusedWithFileAndLine) {
                       "ground-glass-G1, etched-glass-E1, antiglare-A1)"),
             std::string::npos)
       << Refusal("unknown_sample.toml");
+  // A table that is missing has no line: the message says the whole file was searched.
+  auto no_rect = LoadPlanText(
+      "sample = \"ground-glass-G1\"\n[geometry]\nincidence_deg = [0]\nview_about = "
+      "\"refracted\"\nview_from_deg = -5\nview_to_deg = 5\nview_step_deg = 5\n"
+      "[exposure]\nframes = 2\n",
+      "norect.toml", Context());
+  ASSERT_FALSE(no_rect.ok());
+  EXPECT_NE(no_rect.error().message.find("norect.toml: (whole file) the plan has no [rectangle]"),
+            std::string::npos)
+      << no_rect.error().message;
 }
 
 TEST(Plan, PointsRunASerpentineAndUnreachableOnesAreSkipped) {

@@ -119,6 +119,24 @@ TEST_F(StageDriver, OneSidedApproachMakesBacklashRepeatable) {
   EXPECT_NEAR(comp->ReadStatus("sample")->position_deg, 10, 1e-3);
 }
 
+// Issue #18/#19: a target at (or within the overshoot of) the lower travel limit is reached,
+// not refused as "no room below it" (a plan with a view there was retried for ever).
+TEST_F(StageDriver, TargetsAtTheLowerLimitAreReached) {
+  sim::AxisOptions o;
+  o.backlash_steps = 40;
+  Serve(o);
+  auto c = Open(0.1);
+  ASSERT_TRUE(c);
+  ASSERT_TRUE(c->MoveTo({{"sample", -80}}).ok());
+  for (double target : {-90.0, -89.95, -90.0}) {
+    const Status s = c->MoveTo({{"sample", target}});
+    ASSERT_TRUE(s.ok()) << target << ": " << s.error().message;
+    EXPECT_NEAR(c->ReadStatus("sample")->position_deg, target, 1e-3) << target;
+  }
+  // Beyond the limit is still refused before anything moves.
+  EXPECT_FALSE(c->MoveTo({{"sample", -90.01}}).ok());
+}
+
 TEST_F(StageDriver, TransientTimeoutsAreRetriedAndTheMoveCompletes) {
   Serve({}, {sim::WithProbability(FaultKind::kModbusTimeout, 0.15, 6)});
   auto c = Open();

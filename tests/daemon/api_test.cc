@@ -3,9 +3,13 @@
 // twice, a suspender tripped by an injected cooler failure, and the live event stream.
 // The controller and API run in-process on the real drivers (tests/support/sim_instrument.h);
 // holds the CTest resource lock "gvcp".
+#include <arpa/inet.h>
 #include <gtest/gtest.h>
 #include <httplib.h>
+#include <netinet/in.h>
 #include <sqlite3.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <ctime>
@@ -342,6 +346,124 @@ TEST_F(DaemonApi, EventStreamCarriesStateJobAndProgress) {
   EXPECT_NE(stream.find("event: progress\ndata: {"), std::string::npos);
   EXPECT_NE(stream.find("\"done\":10,"), std::string::npos);  // the last point
   EXPECT_NE(stream.find("id: 1\n"), std::string::npos);
+}
+
+// Issue #18: ids beyond 64 bits, fields of the wrong JSON type and oversized bodies are 4xx
+// naming the problem; no reply carries an exception's text (these were 500s with "stoll" or
+// nlohmann's message).
+TEST_F(DaemonApi, OddIdsWrongTypedFieldsAndLargeBodiesAre4xxNamingTheProblem) {
+  auto message = [](const json& j) { return j["error"].value("message", std::string()); };
+  auto expect_clean = [&](int status, const json& j, int want, const std::string& names) {
+    EXPECT_EQ(status, want) << j.dump();
+    const std::string m = message(j);
+    EXPECT_NE(m.find(names), std::string::npos) << m;
+    for (const char* leak : {"stoll", "type_error", "json.exception", "what()"})
+      EXPECT_EQ(m.find(leak), std::string::npos) << m;
+  };
+  const std::string huge = "99999999999999999999";
+  for (const std::string& path : {"/api/v1/runs/" + huge, "/api/v1/runs/" + huge + "/csv",
+                                  "/api/v1/runs/" + huge + "/fits", "/api/v1/jobs/" + huge}) {
+    auto [st, j] = Get(path);
+    expect_clean(st, j, 400, "id '99999999999999999999'");
+  }
+  auto del = client->Delete("/api/v1/jobs/" + huge, Auth());
+  ASSERT_TRUE(del);
+  EXPECT_EQ(del->status, 400);
+  {
+    auto [st, j] = Post("/api/v1/runs/" + huge + "/fit", json::object());
+    expect_clean(st, j, 400, "run id");
+  }
+  {
+    auto [st, j] = Post("/api/v1/jobs", json{{"name", 5}, {"plan", kPlan}});
+    expect_clean(st, j, 400, "\"name\" must be a string");
+  }
+  {
+    auto [st, j] = Post("/api/v1/jobs", json{{"plan", kPlan}, {"repeat", "2"}});
+    expect_clean(st, j, 400, "\"repeat\" must be an integer 1..1000");
+  }
+  {
+    auto [st, j] = Post("/api/v1/jobs/1/position", json{{"position", "first"}});
+    expect_clean(st, j, 400, "\"position\"");
+  }
+  {
+    auto [st, j] = Post("/api/v1/schedules", json{{"schedule", ""}, {"dry_run", "yes"}});
+    expect_clean(st, j, 400, "\"dry_run\" must be true or false");
+  }
+  {
+    auto [st, j] = Post("/api/v1/schedules", json{{"schedule", ""}, {"name", json::array()}});
+    expect_clean(st, j, 400, "\"name\" must be a string");
+  }
+  {
+    auto [st, j] = Get("/api/v1/events?after=12abc");
+    expect_clean(st, j, 400, "?after=");
+  }
+  // A body over the limit (4 MiB) with the token: 413 before it is parsed. Without the token:
+  // 401, and the connection is closed rather than the body read as a next request.
+  const std::string big(5u << 20, 'x');
+  {
+    auto [st, j] = Post("/api/v1/jobs", big, Auth());
+    EXPECT_EQ(st, 413) << j.dump();
+  }
+  auto unauth = client->Post("/api/v1/jobs", big, "application/json");
+  ASSERT_TRUE(unauth);
+  EXPECT_EQ(unauth->status, 401);
+  EXPECT_EQ(unauth->get_header_value("Connection"), "close");
+  EXPECT_EQ(Get("/api/v1/status").first, 200);  // and the daemon still answers
+  EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);
+}
+
+// A raw connection's request and the status line of its reply (the socket stays open, as an
+// event-stream client's does, until closed).
+struct RawStream {
+  int fd = -1;
+  std::string status_line;
+  ~RawStream() {
+    if (fd >= 0) ::close(fd);
+  }
+};
+std::unique_ptr<RawStream> OpenStream(int port) {
+  auto s = std::make_unique<RawStream>();
+  s->fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<std::uint16_t>(port));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  timeval tv{10, 0};
+  ::setsockopt(s->fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  if (::connect(s->fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) return s;
+  const std::string req = "GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
+  if (::send(s->fd, req.data(), req.size(), 0) != static_cast<ssize_t>(req.size())) return s;
+  char c = 0;
+  while (::recv(s->fd, &c, 1, 0) == 1 && c != '\n') s->status_line += c;
+  return s;
+}
+
+// Issue #18: event streams hold threads of their own, up to a bound; one more is refused with
+// 503, and /status still answers with the bound reached (8 streams used to take every thread).
+TEST_F(DaemonApi, EventStreamsAreBoundedAndStatusAnswersWithTheBoundReached) {
+  const int limit = ApiOptions{}.max_stream_clients;
+  std::vector<std::unique_ptr<RawStream>> streams;
+  for (int k = 0; k < limit; ++k) {
+    streams.push_back(OpenStream(server->port()));
+    EXPECT_EQ(streams.back()->status_line.rfind("HTTP/1.1 200", 0), 0u)
+        << k << ": " << streams.back()->status_line;
+  }
+  auto extra = OpenStream(server->port());
+  EXPECT_EQ(extra->status_line.rfind("HTTP/1.1 503", 0), 0u) << extra->status_line;
+  client->set_read_timeout(5);
+  auto [st, status] = Get("/api/v1/status");
+  EXPECT_EQ(st, 200);
+  EXPECT_EQ(status["state"], "idle");
+  // A closed stream frees its place (noticed at its next keep-alive write, within 15 s).
+  streams.pop_back();
+  bool reopened = false;
+  for (int i = 0; i < 40 && !reopened; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    auto again = OpenStream(server->port());
+    reopened = again->status_line.rfind("HTTP/1.1 200", 0) == 0;
+    if (reopened) streams.push_back(std::move(again));
+  }
+  EXPECT_TRUE(reopened);
 }
 
 TEST_F(DaemonApi, SchedulesAreValidatedWithFileAndLineAndDryRunsQueueNothing) {

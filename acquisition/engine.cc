@@ -148,6 +148,7 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
   // and its spread (flicker the exposures average out but a short reading does not) enters sigma.
   Exposed e{p, m, RectAccumulator(rect, limit), dark, {}, false};
   for (int k = 0; k < x.frames; ++k) {
+    if (Interrupted()) return Error{ErrorCode::kAborted, "interrupted between frames"};
     if (monitor_ != nullptr) {
       auto w = MonitorW();
       if (!w.ok()) return w.error();
@@ -272,6 +273,20 @@ Result<Measurement> Engine::Retake(Exposed& e, const Error& why) {
 
 Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
                    const std::function<void(const Progress&)>& progress) {
+  // The camera's waits end on the same interrupt as the engine's, for this run only.
+  struct CameraInterrupt {
+    devices::Camera& camera;
+    ~CameraInterrupt() { camera.SetInterrupt(nullptr); }
+  } interrupt_guard{camera_};
+  camera_.SetInterrupt(interrupt_);
+  Status s = RunPoints(run, plan, stop, progress);
+  // Interrupted: the run was left paused with its point pending (the fault handler below).
+  if (!s.ok() && s.error().code == ErrorCode::kAborted && Interrupted()) return OkStatus();
+  return s;
+}
+
+Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
+                         const std::function<void(const Progress&)>& progress) {
   run_ = run;
   auto info = db_.GetRun(run);
   if (!info.ok()) return info.error();
@@ -292,6 +307,13 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
   // A device error stops the stages and leaves the run paused for a resume.
   auto fault = [&](int index, const Error& err) -> Status {
     (void)stages_.StopAll();
+    if (err.code == ErrorCode::kAborted && Interrupted()) {
+      (void)db_.AddEvent(run, "paused",
+                         "interrupted during point " + std::to_string(index) +
+                             " (a daemon stop): its frames so far are discarded; it stays pending");
+      (void)db_.SetRunStatus(run, RunStatus::kPaused);
+      return Error{ErrorCode::kAborted, "interrupted"};
+    }
     (void)db_.AddEvent(run, "fault", err.ToString());
     (void)db_.SetRunStatus(run, RunStatus::kPaused);
     return Error{err.code, "run " + std::to_string(run) + ", point " + std::to_string(index) +
@@ -306,7 +328,7 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
   auto settle = [&](bool* moved_back) -> Status {
     if (!tail) return OkStatus();
     auto m = tail_done.get();
-    if (!m.ok() && tail->in_readout) {
+    if (!m.ok() && tail->in_readout && !Interrupted()) {
       *moved_back = true;
       m = Retake(*tail, m.error());
     }

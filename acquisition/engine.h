@@ -77,10 +77,17 @@ class Engine {
   // error stops the stages and leaves the run paused for a resume, with the error returned.
   Status Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
              const std::function<void(const Progress&)>& progress = {});
+  // A stop that does not wait for the point in hand (a daemon's SIGTERM): once *flag reads true,
+  // the exposure in progress is stopped (Camera::SetInterrupt), the point's frames so far are
+  // discarded, the point stays pending, and Run returns OK with the run paused. Null: none.
+  void InterruptOn(const std::atomic<bool>* flag) { interrupt_ = flag; }
 
   const EngineStats& stats() const { return stats_; }
 
  private:
+  bool Interrupted() const { return interrupt_ != nullptr && interrupt_->load(); }
+  const std::atomic<bool>* interrupt_ = nullptr;
+
   // A point whose frames are all exposed; its last frame may still be reading out.
   struct Exposed {
     PlannedPoint point;
@@ -91,6 +98,8 @@ class Engine {
     bool in_readout = false;      // the last frame is still to be retrieved
   };
 
+  Status RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
+                   const std::function<void(const Progress&)>& progress);
   // Moves all axes together and reads their positions back into m.
   Status MoveTo(const PlannedPoint& p, Measurement* m);
   // Auto-ranges, darks and exposes the point's frames at the stages' present position.

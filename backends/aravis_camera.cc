@@ -182,12 +182,15 @@ _ArvBuffer* AravisCamera::PopFrame(double wait_s) {
   // A buffer handed back still CLEARED never received a packet: it holds no frame, not even a
   // failed one (Aravis occasionally returns one at once on a loaded machine). It goes back to the
   // pool and the wait for this trigger's frame goes on, so that frames and triggers stay paired.
+  // The wait is sliced so that an interrupt (a daemon stopping) is seen within 50 ms.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_s);
   while (true) {
     const double left =
         std::chrono::duration<double>(deadline - std::chrono::steady_clock::now()).count();
-    if (left <= 0) return nullptr;
-    ArvBuffer* b = arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(left * 1e6));
+    if (left <= 0 || Interrupted()) return nullptr;
+    ArvBuffer* b =
+        arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(std::min(left, 0.05) * 1e6));
+    if (b == nullptr) continue;
     if (b == nullptr || arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) return b;
     arv_stream_push_buffer(stream_, b);
   }
@@ -242,8 +245,21 @@ Result<Frame> AravisCamera::Wrap(ArvBuffer* b, int attempt) {
   return f;
 }
 
+Error AravisCamera::Abandon() {
+  GError* e = nullptr;
+  arv_camera_stop_acquisition(camera_, &e);  // AcquisitionStop ends the exposure in progress
+  g_clear_error(&e);
+  arv_camera_start_acquisition(camera_, &e);  // ready for the next trigger (stale frames drained)
+  g_clear_error(&e);
+  if (early_ != nullptr) arv_stream_push_buffer(stream_, early_);
+  early_ = nullptr;
+  exposed_ = false;
+  return Error{ErrorCode::kAborted, "camera " + s_.address + ": exposure interrupted"};
+}
+
 Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_problem) {
   for (int attempt = first_attempt; attempt <= first_attempt + s_.retries; ++attempt) {
+    if (Interrupted()) return Abandon();
     if (Status t = Trigger(); !t.ok()) {
       if (t.error().code == ErrorCode::kBusy) return t.error();
       // The camera no longer answers: reopen it once per attempt, then trigger again.
@@ -253,6 +269,7 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
     }
     const double wait_s = exposure_s_ + s_.frame_timeout_s;
     ArvBuffer* b = PopFrame(wait_s);
+    if (b == nullptr && Interrupted()) return Abandon();
     if (b == nullptr) {
       *last_problem = "no frame within " + std::to_string(wait_s) + " s";
       continue;
@@ -284,6 +301,7 @@ Status AravisCamera::Expose() {
   // An exposure short enough to begin and end between two reads shows as its frame arriving.
   bool seen_active = false;
   for (;;) {
+    if (Interrupted()) return Abandon();
     GError* e = nullptr;
     const bool active = arv_device_get_boolean_feature_value(dev, s_.features.status.c_str(), &e);
     if (Status s = Check(e, "camera " + s_.address + ": " + s_.features.status); !s.ok()) return s;
@@ -314,6 +332,7 @@ Result<Frame> AravisCamera::Retrieve() {
   exposed_ = false;
   ArvBuffer* b = early_ != nullptr ? early_ : PopFrame(s_.frame_timeout_s);
   early_ = nullptr;
+  if (b == nullptr && Interrupted()) return Abandon();
   if (b == nullptr)
     return Error{ErrorCode::kTimeout, "camera " + s_.address + ": no frame within " +
                                           std::to_string(s_.frame_timeout_s) +

@@ -60,6 +60,9 @@ class AravisCamera final : public Camera {
   Result<Frame> Wrap(_ArvBuffer* b, int attempt);
   // One trigger and its retries; kTimeout carries only the last problem (in *last_problem).
   Result<Frame> SnapOnce(int first_attempt, std::string* last_problem);
+  // Interrupted (Camera::SetInterrupt): the exposure stopped and acquisition restarted; the
+  // kAborted error to return.
+  Error Abandon();
 
   CameraSettings s_;
   std::string identity_;

@@ -5,9 +5,16 @@
 //
 //   build/bench/api_latency [requests_per_s=50] [clients=2] [clock_speed=100]
 //
+// Then, idle, the latency of GET /status with 0, 8, 16 and 100 event-stream clients connected
+// (issue #18: 16 are admitted, the rest get 503; 8 used to take every thread).
+//
 // Prints the percentiles in milliseconds and the slowdown as a ratio; shared, noisy machines make
 // single runs rough: repeat and compare ratios.
+#include <arpa/inet.h>
 #include <httplib.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
@@ -49,6 +56,25 @@ double Percentile(std::vector<double> v, double p) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
   return v[std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5))];
+}
+
+// An event-stream client on a raw socket, left open; true when the daemon admitted it (200).
+bool OpenStream(int port, std::vector<int>* fds) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<std::uint16_t>(port));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  timeval tv{5, 0};
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  fds->push_back(fd);
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) return false;
+  const std::string req = "GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
+  if (::send(fd, req.data(), req.size(), 0) != static_cast<ssize_t>(req.size())) return false;
+  std::string line;
+  char c = 0;
+  while (::recv(fd, &c, 1, 0) == 1 && c != '\n') line += c;
+  return line.rfind("HTTP/1.1 200", 0) == 0;
 }
 
 }  // namespace
@@ -139,6 +165,32 @@ int main(int argc, char** argv) {
               Percentile(lat, 0.95), Percentile(lat, 0.99), Percentile(lat, 1.0));
   std::printf("  sweep: %.2f s without load (two runs: %.2f, %.2f), %.2f s with it: ratio %.3f\n",
               base, quiet, quiet2, loaded, loaded / base);
+  // /status with stream clients connected (cumulative: 8, then 8 more, then 84 more).
+  std::printf(
+      "\n| stream clients connected | admitted | GET /status p50 ms | p99 ms | max ms | "
+      "failed |\n|---|---|---|---|---|---|\n");
+  std::vector<int> fds;
+  int admitted = 0;
+  for (const int want : {0, 8, 16, 100}) {
+    while (static_cast<int>(fds.size()) < want) admitted += OpenStream(port, &fds) ? 1 : 0;
+    std::vector<double> ms;
+    int failed = 0;
+    for (int k = 0; k < 200; ++k) {
+      httplib::Client cli("127.0.0.1", port);
+      cli.set_read_timeout(5);
+      const auto t0 = Clock::now();
+      auto r = cli.Get("/api/v1/status");
+      if (!r || r->status != 200) {
+        ++failed;
+        continue;
+      }
+      ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    }
+    std::printf("| %d | %d | %.2f | %.2f | %.2f | %d |\n", want, admitted, Percentile(ms, 0.5),
+                Percentile(ms, 0.99), Percentile(ms, 1.0), failed);
+    errors += failed;
+  }
+  for (int fd : fds) ::close(fd);
   controller.Shutdown();
   (*api)->Stop();
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);

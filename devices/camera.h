@@ -105,6 +105,17 @@ class Camera {
   // within tolerance for hold_s. Errors: kTimeout naming the temperature reached; kAborted when
   // w.cancel was set.
   virtual Status CoolAndWait(const TemperatureWait& w) = 0;
+
+  // Once *flag reads true, a Snap, Expose or Retrieve in progress (or begun) ends within about
+  // 0.1 s with kAborted: the exposure is stopped (AcquisitionStop) and the camera left ready for
+  // the next trigger. Null (the default): nothing interrupts them. A daemon stopping sets it.
+  void SetInterrupt(const std::atomic<bool>* flag) { interrupt_ = flag; }
+
+ protected:
+  bool Interrupted() const { return interrupt_ != nullptr && interrupt_->load(); }
+
+ private:
+  const std::atomic<bool>* interrupt_ = nullptr;
 };
 
 }  // namespace gonio::devices

@@ -47,6 +47,7 @@ const char* CodeName(int status) {
     case 409:
       return "conflict";
     case 413:
+    case 414:
       return "too_large";
     case 503:
       return "unavailable";

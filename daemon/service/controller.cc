@@ -253,6 +253,7 @@ void Controller::Shutdown() {
     shutdown_ = true;
     stop_reason_ = StopReason::kShutdown;
     stop_ = true;
+    interrupt_ = true;  // a stop within seconds: the exposure in hand is not waited for
     cv_.notify_all();
   }
   if (worker_.joinable()) worker_.join();
@@ -567,6 +568,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
 
   lock.unlock();
   acquisition::Engine engine(stages_, camera_, monitor_, db_, o_.engine);
+  engine.InterruptOn(&interrupt_);
   const gonio::Status s = engine.Run(run, *plan, stop_, [this](const Progress& p) { OnPoint(p); });
   if (!s.ok()) SafeState();
   lock.lock();

@@ -172,6 +172,7 @@ class Controller {
   double suspended_since_ = 0;
   StopReason stop_reason_ = StopReason::kNone;
   std::atomic<bool> stop_{false};
+  std::atomic<bool> interrupt_{false};  // Shutdown: the point in hand is abandoned (pending)
   std::thread worker_;
   bool started_ = false;
 };

@@ -6,8 +6,9 @@
 //          [--on-start resume|pause|ignore] [--temperature-setpoint C --temperature-band C]
 //          [--monitor-floor W] [--port-file F]
 //
-// SIGTERM or SIGINT: the current point is stored, the run is left paused, the stages stop, and
-// goniod exits 0 within seconds (plus the exposure in progress). On start, a run left unfinished
+// SIGTERM or SIGINT: the exposure in progress is stopped and the point in hand left pending, the
+// run is left paused, the stages stop, and goniod exits 0 within about a second (docs/api.md
+// has the figures). On start, a run left unfinished
 // is resumed (--on-start resume, the default), held paused for the operator (pause), or left
 // alone (ignore). Under systemd (Type=notify) it reports READY=1 once the API listens.
 // Exit codes: 0 stopped by a signal; 1 a device, storage or bind error; 2 bad input.
@@ -16,6 +17,7 @@
 #include <CLI/CLI.hpp>
 #include <csignal>
 #include <fstream>
+#include <future>
 #include <iostream>
 #include <sstream>
 #include <thread>
@@ -163,9 +165,31 @@ int main(int argc, char** argv) {
   int sig = 0;
   sigwait(&signals, &sig);
   std::cout << Timestamp() << " [state] " << (sig == SIGTERM ? "SIGTERM" : "SIGINT")
-            << ": stopping after the current point" << std::endl;
+            << ": stopping (the exposure in progress is abandoned, its point left pending)"
+            << std::endl;
   sd_notify(0, "STOPPING=1");
-  controller.Shutdown();  // the run stays paused in the database; the stages stop
+  // The run in hand is interrupted (its point left pending) and left paused. A worker that does
+  // not come back within kGraceS is waiting on a device that does not answer (its retries and
+  // reconnects can take tens of seconds): goniod then stops the stages as far as they answer and
+  // exits without it. The database stays consistent (every point is one transaction; a kill -9
+  // loses nothing either), and the next start finds the run interrupted and resumes it.
+  constexpr double kGraceS = 2.0, kStopWaitS = 1.5;
+  auto worker_done = std::async(std::launch::async, [&controller] { controller.Shutdown(); });
+  if (worker_done.wait_for(std::chrono::duration<double>(kGraceS)) != std::future_status::ready) {
+    std::cout << Timestamp() << " [state] the run's worker is still waiting on a device after "
+              << kGraceS
+              << " s (not answering?): exiting without it; the run resumes at the next start"
+              << std::endl;
+    auto stopped = std::async(std::launch::async, [&in] { return in.stages->StopAll(); });
+    const bool answered =
+        stopped.wait_for(std::chrono::duration<double>(kStopWaitS)) == std::future_status::ready &&
+        stopped.get().ok();
+    std::cout << Timestamp() << " [state] "
+              << (answered ? "stages stopped"
+                           : "the stages did not confirm STOP: they may still be moving")
+              << "; stopped without waiting for the worker" << std::endl;
+    std::_Exit(0);  // the worker and the futures are not waited for
+  }
   (*api)->Stop();
   logger.join();
   (void)in.stages->StopAll();

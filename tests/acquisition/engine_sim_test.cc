@@ -12,6 +12,7 @@
 #include <fstream>
 #include <map>
 #include <mutex>
+#include <set>
 #include <thread>
 
 #include "acquisition/engine.h"
@@ -297,6 +298,49 @@ TEST_F(EngineOnSim, AReflectionSweepMeasuresTheBrdfAboutTheSpecularDirection) {
 
 // A lamp drifting 20 %/min: the monitor's normalisation removes it, and without the monitor the
 // same geometry measured a minute later reads 20 % higher.
+// Issue #18: a daemon's SIGTERM interrupts the point in hand rather than waiting for it. Set
+// once the first point is stored, the interrupt ends the run at once: Run returns OK with the run
+// paused, the interrupted point is not stored and stays pending (an event says so), the shutter
+// is open again, and a resume measures every remaining point exactly once.
+TEST_F(EngineOnSim, AnInterruptLeavesThePointInHandPendingAndTheRunResumesWhole) {
+  auto [plan, run] = NewRun(
+      "incidence_deg = [0]\nview_about = \"refracted\"\nview_from_deg = -4\nview_to_deg = 4\n"
+      "view_step_deg = 2",
+      "frames = 4\ninitial_s = 0.01");
+  std::atomic<bool> stop{false}, interrupt{false};
+  {
+    Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
+                  EngineOptions{.linear_limit_adu = 65000});
+    engine.InterruptOn(&interrupt);
+    const Status s = engine.Run(run, plan, stop, [&](const Progress&) { interrupt = true; });
+    ASSERT_TRUE(s.ok()) << s.error().message;
+  }
+  auto info = store->GetRun(run);
+  ASSERT_TRUE(info.ok());
+  EXPECT_EQ(info->status, RunStatus::kPaused);
+  const auto stored = *store->Measurements(run);
+  EXPECT_GE(stored.size(), 1u);
+  EXPECT_LT(stored.size(), 5u) << "the interrupt did not stop the run";
+  bool said = false;
+  const auto events = store->Events(run);
+  ASSERT_TRUE(events.ok());
+  for (const auto& e : *events)
+    said = said || (e.kind == "paused" && e.detail.find("interrupted during point") == 0);
+  EXPECT_TRUE(said);
+  // The camera is usable again without the flag, and its shutter open: the resumed run's values
+  // are not darks.
+  Engine again(*inst.stages, *inst.camera, inst.meter, *store,
+               EngineOptions{.linear_limit_adu = 65000});
+  const auto rows = RunToEnd(again, plan, run);
+  ASSERT_EQ(rows.size(), 5u);
+  std::set<int> indices;
+  for (const auto& r : rows) {
+    indices.insert(r.point.index);
+    EXPECT_GT(r.m.value, 10 * r.m.sigma) << r.point.index;
+  }
+  EXPECT_EQ(indices.size(), 5u);
+}
+
 class EngineDriftingLamp : public EngineOnSim {
  protected:
   sim::LampOptions LampOpts() override {

@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <memory>
+#include <thread>
 
 #include "backends/aravis_camera.h"
 #include "sim/camera/camera.h"
@@ -184,6 +185,44 @@ TEST_F(CameraDriver, ARetrievalLostAfterExposeIsAnErrorAndNotRetried) {
   ASSERT_FALSE(e.ok());
   EXPECT_EQ(e.error().code, ErrorCode::kFailedPrecondition);
   EXPECT_TRUE(plain->Snap().ok());
+}
+
+// Issue #18: a daemon stopping does not wait for the exposure in hand. Interrupted, Snap and
+// Expose return kAborted long before the exposure would have ended (300 simulated seconds, 3 s
+// here), and once the flag clears the camera takes frames again.
+TEST_F(CameraDriver, AnInterruptEndsTheExposureInHandAndTheCameraIsReadyAgain) {
+  Start();
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  std::atomic<bool> interrupt{false};
+  cam->SetInterrupt(&interrupt);
+  ASSERT_TRUE(cam->SetExposure(300.0).ok());
+  for (const bool split : {false, true}) {
+    interrupt = false;
+    std::thread stopper([&] {
+      std::this_thread::sleep_for(std::chrono::milliseconds(300));
+      interrupt = true;
+    });
+    const double t0 = clock.Now();
+    Status s = OkStatus();
+    if (split) {
+      s = cam->Expose();
+    } else {
+      auto f = cam->Snap();
+      if (!f.ok()) s = f.error();
+    }
+    const double took = clock.Now() - t0;
+    stopper.join();
+    ASSERT_FALSE(s.ok()) << (split ? "Expose" : "Snap") << " ran to the exposure's end";
+    EXPECT_EQ(s.error().code, ErrorCode::kAborted) << s.error().message;
+    EXPECT_LT(took, 150.0) << "simulated seconds; the exposure was 300";
+  }
+  interrupt = false;
+  ASSERT_TRUE(cam->SetExposure(0.05).ok());
+  auto f = cam->Snap();
+  ASSERT_TRUE(f.ok()) << f.error().message;
+  EXPECT_EQ(f->attempts, 1);
+  cam->SetInterrupt(nullptr);
 }
 
 TEST_F(CameraDriver, CoolsToASetpointAndHoldsIt) {

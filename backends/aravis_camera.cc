@@ -74,6 +74,18 @@ void AravisCamera::Disconnect() {
 }
 
 Status AravisCamera::Connect() {
+  // A connection made halfway is undone: camera_ is null exactly when there is none.
+  Status s = ConnectSteps();
+  if (!s.ok()) Disconnect();
+  return s;
+}
+
+Status AravisCamera::EnsureConnected() {
+  if (camera_ != nullptr && stream_ != nullptr) return OkStatus();
+  return Reopen();
+}
+
+Status AravisCamera::ConnectSteps() {
   const std::string id = s_.address.rfind("usb3:", 0) == 0 ? s_.address.substr(5) : s_.address;
   GError* e = nullptr;
   camera_ = arv_camera_new(id.c_str(), &e);
@@ -156,6 +168,7 @@ Status AravisCamera::Configure() {
 
 Status AravisCamera::SetExposure(double seconds) {
   if (!(seconds > 0)) return InvalidArgument("exposure must be > 0 s");
+  if (Status c = EnsureConnected(); !c.ok()) return c;
   GError* e = nullptr;
   arv_camera_set_exposure_time(camera_, seconds * 1e6, &e);
   if (Status s = Check(e, "ExposureTime " + std::to_string(seconds) + " s"); !s.ok()) return s;
@@ -164,6 +177,7 @@ Status AravisCamera::SetExposure(double seconds) {
 }
 
 Result<double> AravisCamera::Exposure() {
+  if (Status c = EnsureConnected(); !c.ok()) return c.error();
   GError* e = nullptr;
   const double us = arv_camera_get_exposure_time(camera_, &e);
   if (Status s = Check(e, "ExposureTime"); !s.ok()) return s.error();
@@ -171,6 +185,7 @@ Result<double> AravisCamera::Exposure() {
 }
 
 Result<cv::Size> AravisCamera::ImageSize() {
+  if (Status c = EnsureConnected(); !c.ok()) return c.error();
   GError* e = nullptr;
   gint x = 0, y = 0, w = 0, h = 0;
   arv_camera_get_region(camera_, &x, &y, &w, &h, &e);
@@ -197,6 +212,9 @@ _ArvBuffer* AravisCamera::PopFrame(double wait_s) {
 }
 
 Status AravisCamera::Trigger() {
+  // After a reopen that failed there is no camera: not a pool without buffers (issue #18).
+  if (camera_ == nullptr || stream_ == nullptr)
+    return Error{ErrorCode::kNotConnected, "camera " + s_.address + " is not connected"};
   // Stale frames (from before this call) go back to the pool unread.
   if (early_ != nullptr) arv_stream_push_buffer(stream_, early_);
   early_ = nullptr;
@@ -249,6 +267,18 @@ Error AravisCamera::Abandon() {
   GError* e = nullptr;
   arv_camera_stop_acquisition(camera_, &e);  // AcquisitionStop ends the exposure in progress
   g_clear_error(&e);
+  // A camera that reports its exposure is watched until it has let go of it (briefly: a camera
+  // that does not is restarted anyway; its frame, if one comes, is drained at the next trigger).
+  if (reports_end_) {
+    ArvDevice* dev = arv_camera_get_device(camera_);
+    const auto t0 = std::chrono::steady_clock::now();
+    while (Seconds(t0) < 0.25) {
+      const bool active = arv_device_get_boolean_feature_value(dev, s_.features.status.c_str(), &e);
+      g_clear_error(&e);
+      if (!active) break;
+      std::this_thread::sleep_for(std::chrono::duration<double>(s_.status_poll_s));
+    }
+  }
   arv_camera_start_acquisition(camera_, &e);  // ready for the next trigger (stale frames drained)
   g_clear_error(&e);
   if (early_ != nullptr) arv_stream_push_buffer(stream_, early_);
@@ -361,6 +391,7 @@ Result<Frame> AravisCamera::Snap() {
 }
 
 Result<double> AravisCamera::TemperatureC() {
+  if (Status c = EnsureConnected(); !c.ok()) return c.error();
   ArvDevice* dev = arv_camera_get_device(camera_);
   GError* e = nullptr;
   const VendorFeatures& c = s_.features;
@@ -377,6 +408,7 @@ Result<double> AravisCamera::TemperatureC() {
 Status AravisCamera::SetShutter(bool open) {
   const VendorFeatures& c = s_.features;
   if (c.shutter.empty()) return InvalidArgument("this camera's config names no shutter");
+  if (Status st = EnsureConnected(); !st.ok()) return st;
   GError* e = nullptr;
   arv_device_set_string_feature_value(arv_camera_get_device(camera_), c.shutter.c_str(),
                                       (open ? c.shutter_open : c.shutter_closed).c_str(), &e);
@@ -386,6 +418,7 @@ Status AravisCamera::SetShutter(bool open) {
 Status AravisCamera::SetCooling(bool on, double setpoint_c) {
   const VendorFeatures& c = s_.features;
   if (c.control_mode.empty()) return InvalidArgument("this camera's config names no cooler");
+  if (Status st = EnsureConnected(); !st.ok()) return st;
   ArvDevice* dev = arv_camera_get_device(camera_);
   GError* e = nullptr;
   if (on) {

@@ -46,7 +46,10 @@ class AravisCamera final : public Camera {
 
  private:
   AravisCamera() = default;
-  Status Connect();  // camera, settings, stream
+  Status Connect();  // camera, settings, stream; on failure nothing is left half-open
+  Status ConnectSteps();
+  // A camera lost earlier (a reopen that failed) is opened again before it is used.
+  Status EnsureConnected();
   void Disconnect();
   Status Reopen();  // Disconnect, Connect, restore the exposure; counts reopens_
   Status Configure();

@@ -116,6 +116,30 @@ TEST_F(CameraDriver, ACameraThatWentAwayIsReopened) {
   EXPECT_EQ(cam->reopens(), 1);
 }
 
+// Issue #18: a camera that stays away long enough for the reopen to fail, then comes back, is
+// used again: the failed reopen left no camera, which the next calls opened again (they read it
+// as a pool whose buffers were all held: "all 4 frame buffers are held by earlier Frames").
+TEST_F(CameraDriver, ACameraThatStaysAwayThroughAFailedReopenIsUsedOnceItIsBack) {
+  Start();
+  CameraSettings s;
+  s.retries = 1;
+  auto cam = Open(s);
+  ASSERT_TRUE(cam);
+  ASSERT_TRUE(cam->SetExposure(0.05).ok());
+  ASSERT_TRUE(cam->Snap().ok());
+  sim_camera.reset();  // gone, and not back for the reopen
+  auto lost = cam->Snap();
+  ASSERT_FALSE(lost.ok());
+  EXPECT_EQ(lost.error().code, ErrorCode::kNotConnected) << lost.error().message;
+  Start();  // back
+  auto f = cam->Snap();
+  ASSERT_TRUE(f.ok()) << f.error().message;
+  EXPECT_NEAR(f->exposure_s, 0.05, 1e-5);  // the exposure survived the failed reopen
+  EXPECT_TRUE(cam->TemperatureC().ok());
+  EXPECT_TRUE(cam->Expose().ok());
+  EXPECT_TRUE(cam->Retrieve().ok());
+}
+
 // The split frame (Camera::Expose / Retrieve): Expose() returns when the sensor stops
 // integrating, so an arm moved right after it leaves the frame as it was; the camera is read out
 // slowly here (8.2 s) so that a frame taking its angles at the readout's end would show the move.

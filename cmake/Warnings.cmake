@@ -8,6 +8,13 @@ target_compile_options(gonio_warnings INTERFACE
   -Wdouble-promotion -Wimplicit-fallthrough
   $<$<BOOL:${GONIO_WERROR}>:-Werror>)
 
+if(GONIO_FUZZ)
+  # Every library instrumented for libFuzzer's coverage, with ASan and UBSan to turn memory and
+  # undefined-behaviour bugs into crashes; the fuzz targets add the fuzzer's main.
+  add_compile_options(-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all
+                      -fno-omit-frame-pointer)
+  add_link_options(-fsanitize=address,undefined)
+endif()
 if(GONIO_SANITIZE)
   # -fno-sanitize-recover: a UBSan finding fails the test instead of printing and going on.
   add_compile_options(-fsanitize=address,undefined -fno-sanitize-recover=all

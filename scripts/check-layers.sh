@@ -20,7 +20,7 @@ for n, line in enumerate((root / "cmake/layers.txt").read_text().splitlines(), 1
             sys.exit(f"cmake/layers.txt:{n}: {folder} may include {d}, which is not a layer "
                      f"listed above it")
     layers[folder] = set(deps)
-ours = set(layers) | {"tests", "bench"}
+ours = set(layers) | {"tests", "bench", "fuzz"}
 
 include = re.compile(r'^\s*#\s*include\s+"([a-z_]+)/([^"]+)"')
 bad = 0

@@ -7,6 +7,8 @@ set -euo pipefail
 packages=(
   # toolchain and test/bench frameworks
   build-essential cmake pkg-config git clang-format file
+  # libFuzzer: clang and its runtime (scripts/fuzz.sh, CI's fuzzing run)
+  clang libclang-rt-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   # the hardware and science stack (docs/design.md)
   libaravis-dev aravis-tools libmodbus-dev libusb-1.0-0-dev mbpoll

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The whole test suite under AddressSanitizer and UndefinedBehaviorSanitizer, in a second build
 # directory (build-asan/). CI (.ci/run) runs it after the README's test command; it takes about
-# 15 minutes on 2 cores. Every library's tests run here, the simulated instrument included.
+# 15 minutes on 2 cores, then a short libFuzzer run of every fuzz/ target (about 8 minutes with
+# its clang build). Every library's tests run here, the simulated instrument included.
 # Usage: scripts/sanitize.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -18,3 +19,8 @@ ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:strict_string_checks=1 \
 LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp:print_suppressions=0" \
 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir build-asan --output-on-failure -j "$jobs" --timeout 1800
+
+# libFuzzer on every parser target for a few seconds each (clang, build-fuzz/; fuzz/README.md):
+# a crash regression fails CI here too, beyond the seed replays the suites above ran.
+echo "== fuzzing: 10 s per target =="
+scripts/fuzz.sh all 10

@@ -105,8 +105,16 @@ Status AravisCamera::ConnectSteps() {
   if (Status s = Check(e, "camera payload size"); !s.ok()) return s;
   for (int k = 0; k < s_.buffers; ++k)
     arv_stream_push_buffer(stream_, arv_buffer_new(payload, nullptr));
+  // A frame another client left in hand (a process killed mid-exposure) would arrive after our
+  // first trigger and be taken for its frame, and every later one a frame late: abort it.
+  (void)AbortFrame();
   arv_camera_start_acquisition(camera_, &e);
-  return Check(e, "camera " + s_.address + ": AcquisitionStart");
+  if (Status s = Check(e, "camera " + s_.address + ": AcquisitionStart"); !s.ok()) return s;
+  // A frame that was already on its way (sent when acquisition restarted) is let arrive and
+  // drained here, not taken for the first trigger's.
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  while (ArvBuffer* old = arv_stream_try_pop_buffer(stream_)) arv_stream_push_buffer(stream_, old);
+  return OkStatus();
 }
 
 Status AravisCamera::Reopen() {
@@ -263,8 +271,28 @@ Result<Frame> AravisCamera::Wrap(ArvBuffer* b, int attempt) {
   return f;
 }
 
-Error AravisCamera::Abandon() {
+bool AravisCamera::AbortFrame() {
+  ArvDevice* dev = arv_camera_get_device(camera_);
   GError* e = nullptr;
+  const bool has = arv_device_is_feature_available(dev, "AcquisitionAbort", &e);
+  g_clear_error(&e);
+  if (!has) return false;
+  arv_device_execute_command(dev, "AcquisitionAbort", &e);
+  const bool ok = e == nullptr;
+  g_clear_error(&e);
+  return ok;
+}
+
+Error AravisCamera::Abandon() {
+  // SFNC's AcquisitionAbort ends the frame in hand at once, readout included; without it the
+  // acquisition is stopped and started again below.
+  GError* e = nullptr;
+  if (AbortFrame()) {
+    if (early_ != nullptr) arv_stream_push_buffer(stream_, early_);
+    early_ = nullptr;
+    exposed_ = false;
+    return Error{ErrorCode::kAborted, "camera " + s_.address + ": exposure interrupted"};
+  }
   arv_camera_stop_acquisition(camera_, &e);  // AcquisitionStop ends the exposure in progress
   g_clear_error(&e);
   // A camera that reports its exposure is watched until it has let go of it (briefly: a camera

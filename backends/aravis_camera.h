@@ -66,6 +66,8 @@ class AravisCamera final : public Camera {
   // Interrupted (Camera::SetInterrupt): the exposure stopped and acquisition restarted; the
   // kAborted error to return.
   Error Abandon();
+  // SFNC AcquisitionAbort when the camera has it: the frame in hand dropped. False without it.
+  bool AbortFrame();
 
   CameraSettings s_;
   std::string identity_;

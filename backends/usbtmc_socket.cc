@@ -66,14 +66,26 @@ Result<std::unique_ptr<UsbTmcSocketTransport>> UsbTmcSocketTransport::Connect(
     return Error{ErrorCode::kInvalidArgument,
                  "source monitor socket: '" + host + "' is not a numeric IPv4 address"};
   std::unique_ptr<UsbTmcSocketTransport> t(new UsbTmcSocketTransport());
-  t->fd_ = socket(AF_INET, SOCK_STREAM, 0);
-  if (t->fd_ < 0) return Error{ErrorCode::kIo, std::string("socket: ") + std::strerror(errno)};
-  if (connect(t->fd_, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0)
-    return Error{ErrorCode::kNotConnected, "source monitor socket " + host + ":" +
-                                               std::to_string(port) + ": " + std::strerror(errno)};
-  const int one = 1;
-  setsockopt(t->fd_, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+  t->host_ = host;
+  t->port_ = port;
+  if (Status s = t->Dial(); !s.ok()) return s.error();
   return t;
+}
+
+Status UsbTmcSocketTransport::Dial() {
+  if (fd_ >= 0) close(fd_);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<std::uint16_t>(port_));
+  inet_pton(AF_INET, host_.c_str(), &addr.sin_addr);  // checked by Connect
+  fd_ = socket(AF_INET, SOCK_STREAM, 0);
+  if (fd_ < 0) return Error{ErrorCode::kIo, std::string("socket: ") + std::strerror(errno)};
+  if (connect(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0)
+    return Error{ErrorCode::kNotConnected, "source monitor socket " + host_ + ":" +
+                                               std::to_string(port_) + ": " + std::strerror(errno)};
+  const int one = 1;
+  setsockopt(fd_, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+  return OkStatus();
 }
 
 UsbTmcSocketTransport::~UsbTmcSocketTransport() {
@@ -127,6 +139,11 @@ Result<std::vector<std::uint8_t>> UsbTmcSocketTransport::ClassRequest(std::uint8
 
 Status UsbTmcSocketTransport::Reopen() {
   auto r = Call('R', {}, 1000);
+  if (!r.ok() && r.error().code == ErrorCode::kNotConnected) {
+    // The socket is gone with the process that served it: dial again, then reopen the device.
+    if (Status s = Dial(); !s.ok()) return s;
+    r = Call('R', {}, 1000);
+  }
   if (!r.ok()) return r.error();
   return OkStatus();
 }

@@ -32,10 +32,15 @@ class UsbTmcSocketTransport final : public UsbTmcTransport {
   Result<std::size_t> BulkIn(std::uint8_t* data, std::size_t capacity, int timeout_ms) override;
   Result<std::vector<std::uint8_t>> ClassRequest(std::uint8_t request, std::uint16_t value,
                                                  std::uint16_t length, int timeout_ms) override;
+  // The device reopened; when the socket itself has gone (gonio-sim restarted), it is connected
+  // again to the same address first.
   Status Reopen() override;
 
  private:
   UsbTmcSocketTransport() = default;
+  Status Dial();  // a new socket to host_:port_ in fd_ (the old one closed)
+  std::string host_;
+  int port_ = 0;
   Result<std::vector<std::uint8_t>> Call(char op, const std::vector<std::uint8_t>& payload,
                                          int timeout_ms);
   int fd_ = -1;

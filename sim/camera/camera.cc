@@ -226,6 +226,16 @@ void SimulatedCamera::Step(double now) {
                                  std::lround(cooler_.Temperature(now) * 1000))));
   SetReg(kCoolingPower, static_cast<std::uint32_t>(std::lround(cooler_.PowerPercent(now) * 1000)));
 
+  // AcquisitionAbort (SFNC): a latch the firmware clears, so that an abort written between two
+  // steps is never missed (a stop and a start written back to back can be). The exposure or
+  // readout in hand ends and its frame is not sent; a trigger written after the abort stays.
+  if (Reg(kAcquisitionAbort) != 0) {
+    SetReg(kAcquisitionAbort, 0);
+    exposing_ = integrating_ = false;
+    SetReg(kExposureActive, 0);
+    ready_frame_.reset();
+    SetReg(kFakeTriggerSoftware, 0);  // a frame handed to the sender but not yet sent stays here
+  }
   if (Reg(kFakeAcquisition) == 0) {
     // Just stopped: forget the exposure in progress. A trigger register left set is not cleared:
     // the client's GVCP writes do not take our lock, so a clear here can land after the client
@@ -235,6 +245,9 @@ void SimulatedCamera::Step(double now) {
       exposing_ = integrating_ = false;
       SetReg(kExposureActive, 0);
       ready_frame_.reset();
+      // The sender's own trigger too: left set, it would send an empty frame at the next start
+      // (after a client that stopped mid-frame, the next client's first frame).
+      SetReg(kFakeTriggerSoftware, 0);
     }
     acquiring_ = false;
     return;

@@ -53,6 +53,7 @@ inline constexpr std::uint32_t kBlackLevel = 0x41c;         // ADU
 inline constexpr std::uint32_t kShutter = 0x428;            // 0 open, 1 closed (dark frames)
 inline constexpr std::uint32_t kExposureActive = 0x42c;     // 1 while integrating (RO)
 inline constexpr std::uint32_t kStatusSelector = 0x430;     // 6: ExposureActive (the only one)
+inline constexpr std::uint32_t kAcquisitionAbort = 0x434;   // write 1: drop the frame in hand
 }  // namespace camera_reg
 
 // The genicam file installed beside the sources (compiled-in path; overridable).

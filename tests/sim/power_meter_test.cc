@@ -191,5 +191,27 @@ TEST_F(PowerMeter, OverTheLoopbackSocketTheDriverSeesTheSameMeter) {
   EXPECT_FALSE(backends::UsbTmcSocketTransport::Connect("localhost", 1).ok());  // numeric only
 }
 
+// Issue #18: the process serving the meter ends and a new one serves it on the same port (a
+// gonio-sim restart). The driver's reopen dials again; it used to send its reopen down the dead
+// socket and never recover.
+TEST_F(PowerMeter, AServerThatRestartsOnItsPortIsReachedAgain) {
+  SimulatedPowerMeter dev(clock, lamp, {}, 1, nullptr);
+  auto server = MonitorSocketServer::Start(dev);
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  const int port = (*server)->port();
+  auto transport = backends::UsbTmcSocketTransport::Connect("127.0.0.1", port);
+  ASSERT_TRUE(transport.ok()) << transport.error().message;
+  ScpiPowerMeter meter(**transport);
+  ASSERT_TRUE(meter.PowerW().ok());
+  server->reset();  // the process is gone
+  auto gone = meter.PowerW();
+  ASSERT_FALSE(gone.ok());
+  EXPECT_EQ(gone.error().code, ErrorCode::kNotConnected) << gone.error().message;
+  auto again = MonitorSocketServer::Start(dev, port);  // back, on its port
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  auto back = meter.PowerW();
+  EXPECT_TRUE(back.ok()) << back.error().message;
+}
+
 }  // namespace
 }  // namespace gonio::sim

@@ -238,6 +238,12 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
 }
 
 Result<Measurement> Engine::Complete(Exposed& e) {
+  if (DeviceEpoch() != e.epoch) {
+    e.in_readout = false;  // not retaken: the whole point is measured again
+    return Error{ErrorCode::kDeviceFault,
+                 "the camera or the stages were connected again while this point was measured "
+                 "(a device restarted?); it stays pending and is measured again"};
+  }
   if (e.in_readout) {
     auto f = camera_.Retrieve();
     if (!f.ok()) return f.error();
@@ -358,6 +364,7 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     }
     Measurement m;
     m.index = p.index;
+    const int epoch = DeviceEpoch();
     Status moved = MoveTo(p, &m);  // while the previous point's last frame reads out
     moved_back = false;
     if (Status s = settle(&moved_back); !s.ok()) return s;
@@ -366,6 +373,7 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     auto e = ExposePoint(p, plan, m);
     if (!e.ok()) return fault(p.index, e.error());
     tail.emplace(std::move(e).value());
+    tail->epoch = epoch;
     const bool overlap = tail->in_readout;
     tail_done = std::async(overlap ? std::launch::async : std::launch::deferred,
                            [this, t = &*tail] { return Complete(*t); });

@@ -96,7 +96,11 @@ class Engine {
     const DarkRecord* dark = nullptr;
     std::vector<double> monitor;  // W: before every frame and after the last
     bool in_readout = false;      // the last frame is still to be retrieved
+    int epoch = 0;                // DeviceEpoch() before the point's move
   };
+  // The devices' reconnections so far: a change during a point means a device went away and
+  // came back (a power cycle loses the stages' positions), so the point is measured again.
+  int DeviceEpoch() const { return camera_.Reconnections() + stages_.Reconnections(); }
 
   Status RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
                    const std::function<void(const Progress&)>& progress);

@@ -8,6 +8,7 @@
 // SFNC counter of exposure ends would remove that case; it is not used yet.
 #pragma once
 
+#include <atomic>
 #include <memory>
 
 #include "devices/camera.h"
@@ -43,6 +44,7 @@ class AravisCamera final : public Camera {
   Status CoolAndWait(const TemperatureWait& w) override;
 
   int reopens() const { return reopens_; }
+  int Reconnections() const override { return reopens_; }
 
  private:
   AravisCamera() = default;
@@ -74,7 +76,7 @@ class AravisCamera final : public Camera {
   _ArvCamera* camera_ = nullptr;
   _ArvStream* stream_ = nullptr;
   double exposure_s_ = 0.1;
-  int reopens_ = 0;
+  std::atomic<int> reopens_{0};  // read by the engine's readout thread (Reconnections)
   bool reports_end_ = false;     // the status feature exists (Connect)
   bool exposed_ = false;         // Expose() has triggered a frame that Retrieve() has not taken
   _ArvBuffer* early_ = nullptr;  // that frame, when it arrived before the exposure's end was seen

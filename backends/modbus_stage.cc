@@ -98,7 +98,7 @@ Result<const AxisSettings*> ModbusStageController::Find(const std::string& name)
 // One request under the retry policy. `op` performs it and returns libmodbus's result.
 template <typename Op>
 static Status WithRetries(void* ctx, const ModbusLink& link, const std::string& what, Op op,
-                          int* retried, int* reconnects) {
+                          int* retried, std::atomic<int>* reconnects) {
   int last = 0;
   for (int attempt = 0; attempt <= link.retries; ++attempt) {
     if (op() != -1) return OkStatus();

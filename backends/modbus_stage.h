@@ -7,6 +7,7 @@
 // error and is not retried. Alarms and limit switches are kDeviceFault at once.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <mutex>
@@ -40,6 +41,7 @@ class ModbusStageController final : public StageController {
   // How many requests were retried, and reconnections made (for logs and tests).
   int retried() const { return retried_; }
   int reconnects() const { return reconnects_; }
+  int Reconnections() const override { return reconnects_; }
 
  private:
   ModbusStageController() = default;
@@ -63,7 +65,8 @@ class ModbusStageController final : public StageController {
   StageRegisterProfile p_;
   std::mutex mu_;        // one request on the bus at a time
   void* ctx_ = nullptr;  // modbus_t*
-  int retried_ = 0, reconnects_ = 0;
+  int retried_ = 0;
+  std::atomic<int> reconnects_{0};  // read by the engine's readout thread (Reconnections)
 };
 
 }  // namespace gonio::backends

@@ -10,11 +10,7 @@
 //
 // Prints the percentiles in milliseconds and the slowdown as a ratio; shared, noisy machines make
 // single runs rough: repeat and compare ratios.
-#include <arpa/inet.h>
 #include <httplib.h>
-#include <netinet/in.h>
-#include <sys/socket.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
@@ -22,6 +18,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <memory>
 #include <thread>
 #include <vector>
 
@@ -29,6 +26,7 @@
 #include "daemon/instrument/instrument.h"
 #include "daemon/service/controller.h"
 #include "sim/instrument.h"
+#include "tests/support/raw_http.h"
 
 namespace {
 
@@ -56,25 +54,6 @@ double Percentile(std::vector<double> v, double p) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
   return v[std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5))];
-}
-
-// An event-stream client on a raw socket, left open; true when the daemon admitted it (200).
-bool OpenStream(int port, std::vector<int>* fds) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_port = htons(static_cast<std::uint16_t>(port));
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  timeval tv{5, 0};
-  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
-  fds->push_back(fd);
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) return false;
-  const std::string req = "GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
-  if (::send(fd, req.data(), req.size(), 0) != static_cast<ssize_t>(req.size())) return false;
-  std::string line;
-  char c = 0;
-  while (::recv(fd, &c, 1, 0) == 1 && c != '\n') line += c;
-  return line.rfind("HTTP/1.1 200", 0) == 0;
 }
 
 }  // namespace
@@ -169,10 +148,13 @@ int main(int argc, char** argv) {
   std::printf(
       "\n| stream clients connected | admitted | GET /status p50 ms | p99 ms | max ms | "
       "failed |\n|---|---|---|---|---|---|\n");
-  std::vector<int> fds;
+  std::vector<std::unique_ptr<testing::EventStreamClient>> streams;
   int admitted = 0;
   for (const int want : {0, 8, 16, 100}) {
-    while (static_cast<int>(fds.size()) < want) admitted += OpenStream(port, &fds) ? 1 : 0;
+    while (static_cast<int>(streams.size()) < want) {
+      streams.push_back(std::make_unique<testing::EventStreamClient>(port));
+      admitted += streams.back()->admitted() ? 1 : 0;
+    }
     std::vector<double> ms;
     int failed = 0;
     for (int k = 0; k < 200; ++k) {
@@ -190,7 +172,7 @@ int main(int argc, char** argv) {
                 Percentile(ms, 0.99), Percentile(ms, 1.0), failed);
     errors += failed;
   }
-  for (int fd : fds) ::close(fd);
+  streams.clear();
   controller.Shutdown();
   (*api)->Stop();
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);

@@ -105,6 +105,9 @@ class Camera {
   // within tolerance for hold_s. Errors: kTimeout naming the temperature reached; kAborted when
   // w.cancel was set.
   virtual Status CoolAndWait(const TemperatureWait& w) = 0;
+  // How many times the camera has been opened again after it was lost (a power cycle): its
+  // frames before and after a change of this count may not belong together.
+  virtual int Reconnections() const { return 0; }
 
   // Once *flag reads true, a Snap, Expose or Retrieve in progress (or begun) ends within about
   // 0.1 s with kAborted: the exposure is stopped (AcquisitionStop) and the camera left ready for

@@ -84,6 +84,9 @@ class StageController {
   virtual Status StopAll() = 0;
   virtual Result<AxisStatus> ReadStatus(const std::string& name) = 0;
   virtual Status ResetAlarm(const std::string& name) = 0;
+  // How many times the link has been connected again (a dropped connection, a controller that
+  // restarted). A position read before a change of this count may no longer hold.
+  virtual int Reconnections() const { return 0; }
 };
 
 }  // namespace gonio::devices

@@ -164,6 +164,7 @@ class OverlapProbe {
     Status SetShutter(bool open) override { return inner_.SetShutter(open); }
     Status SetCooling(bool on, double sp) override { return inner_.SetCooling(on, sp); }
     Status CoolAndWait(const devices::TemperatureWait& w) override { return inner_.CoolAndWait(w); }
+    int Reconnections() const override { return inner_.Reconnections(); }
     bool ReportsExposureEnd() const override { return inner_.ReportsExposureEnd(); }
     Status Expose() override {
       std::lock_guard lock(probe_.mu_);
@@ -203,6 +204,7 @@ class OverlapProbe {
       return inner_.ReadStatus(name);
     }
     Status ResetAlarm(const std::string& name) override { return inner_.ResetAlarm(name); }
+    int Reconnections() const override { return inner_.Reconnections(); }
 
    private:
     devices::StageController& inner_;

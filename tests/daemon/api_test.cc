@@ -14,6 +14,7 @@
 #include <chrono>
 #include <ctime>
 #include <filesystem>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <random>
 #include <set>
@@ -21,6 +22,7 @@
 
 #include "daemon/api/http_api.h"
 #include "daemon/service/controller.h"
+#include "tests/support/raw_http.h"
 #include "tests/support/sim_instrument.h"
 
 namespace gonio::daemon {
@@ -348,26 +350,6 @@ TEST_F(DaemonApi, EventStreamCarriesStateJobAndProgress) {
   EXPECT_NE(stream.find("id: 1\n"), std::string::npos);
 }
 
-// Sends `request` on a new connection and returns everything the server sends until it closes
-// the connection ("" on a failure to connect; what came, if it does not close within 5 s).
-std::string RawExchange(int port, const std::string& request) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_port = htons(static_cast<std::uint16_t>(port));
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  timeval tv{5, 0};
-  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
-  std::string out;
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0 &&
-      ::send(fd, request.data(), request.size(), 0) == static_cast<ssize_t>(request.size())) {
-    char buf[4096];
-    for (ssize_t n; (n = ::recv(fd, buf, sizeof buf, 0)) > 0;) out.append(buf, n);
-  }
-  ::close(fd);
-  return out;
-}
-
 // Issue #18: ids beyond 64 bits, fields of the wrong JSON type and oversized bodies are 4xx
 // naming the problem; no reply carries an exception's text (these were 500s with "stoll" or
 // nlohmann's message).
@@ -426,7 +408,7 @@ TEST_F(DaemonApi, OddIdsWrongTypedFieldsAndLargeBodiesAre4xxNamingTheProblem) {
   }
   // The headers of a 100 MB body, and no body: the reply comes at once, then the end of the
   // connection (a server that read the body would wait for it).
-  const std::string reply = RawExchange(
+  const std::string reply = gonio::testing::RawExchange(
       server->port(),
       "POST /api/v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
       "Content-Length: 104857600\r\n\r\n");
@@ -436,44 +418,18 @@ TEST_F(DaemonApi, OddIdsWrongTypedFieldsAndLargeBodiesAre4xxNamingTheProblem) {
   EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);
 }
 
-// A raw connection's request and the status line of its reply (the socket stays open, as an
-// event-stream client's does, until closed).
-struct RawStream {
-  int fd = -1;
-  std::string status_line;
-  ~RawStream() {
-    if (fd >= 0) ::close(fd);
-  }
-};
-std::unique_ptr<RawStream> OpenStream(int port) {
-  auto s = std::make_unique<RawStream>();
-  s->fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_port = htons(static_cast<std::uint16_t>(port));
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  timeval tv{10, 0};
-  ::setsockopt(s->fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
-  if (::connect(s->fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) return s;
-  const std::string req = "GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
-  if (::send(s->fd, req.data(), req.size(), 0) != static_cast<ssize_t>(req.size())) return s;
-  char c = 0;
-  while (::recv(s->fd, &c, 1, 0) == 1 && c != '\n') s->status_line += c;
-  return s;
-}
-
 // Issue #18: event streams hold threads of their own, up to a bound; one more is refused with
 // 503, and /status still answers with the bound reached (8 streams used to take every thread).
 TEST_F(DaemonApi, EventStreamsAreBoundedAndStatusAnswersWithTheBoundReached) {
+  using gonio::testing::EventStreamClient;
   const int limit = ApiOptions{}.max_stream_clients;
-  std::vector<std::unique_ptr<RawStream>> streams;
+  std::vector<std::unique_ptr<EventStreamClient>> streams;
   for (int k = 0; k < limit; ++k) {
-    streams.push_back(OpenStream(server->port()));
-    EXPECT_EQ(streams.back()->status_line.rfind("HTTP/1.1 200", 0), 0u)
-        << k << ": " << streams.back()->status_line;
+    streams.push_back(std::make_unique<EventStreamClient>(server->port()));
+    EXPECT_TRUE(streams.back()->admitted()) << k << ": " << streams.back()->status_line;
   }
-  auto extra = OpenStream(server->port());
-  EXPECT_EQ(extra->status_line.rfind("HTTP/1.1 503", 0), 0u) << extra->status_line;
+  EventStreamClient extra(server->port());
+  EXPECT_EQ(extra.status_line.rfind("HTTP/1.1 503", 0), 0u) << extra.status_line;
   client->set_read_timeout(5);
   auto [st, status] = Get("/api/v1/status");
   EXPECT_EQ(st, 200);
@@ -483,8 +439,8 @@ TEST_F(DaemonApi, EventStreamsAreBoundedAndStatusAnswersWithTheBoundReached) {
   bool reopened = false;
   for (int i = 0; i < 40 && !reopened; ++i) {
     std::this_thread::sleep_for(std::chrono::milliseconds(500));
-    auto again = OpenStream(server->port());
-    reopened = again->status_line.rfind("HTTP/1.1 200", 0) == 0;
+    auto again = std::make_unique<EventStreamClient>(server->port());
+    reopened = again->admitted();
     if (reopened) streams.push_back(std::move(again));
   }
   EXPECT_TRUE(reopened);

@@ -4,6 +4,8 @@
 #     within seconds (the exposure in hand abandoned), exit 0, the run left paused with every
 #     stored point complete, its values those of an uninterrupted run; and again with the
 #     instrument gone (gonio-sim killed);
+#   - the instrument power-cycled mid-run (gonio-sim killed and started again): the run completes
+#     by itself, the point in hand measured again;
 #   - restarted, goniod finds the interrupted run and resumes it: every point measured once; the
 #     job queued behind it was stored and runs after it;
 #   - gonioctl's exit codes: 2 for a refused request (no token, bad plan), 1 when no daemon;
@@ -157,15 +159,41 @@ set -e
   fail "a missing fitter: exit $rc, $(cat "$work/plot3.out")"
 echo "restart resumed the run: $total/$total points, each once"
 
+# The instrument power-cycled mid-run (issue #18): gonio-sim killed, gone for a few seconds,
+# started again on its ports (its stages back at home). The point in hand when it went is
+# measured again (the engine sees the devices reconnected), the run continues by itself, and
+# every point agrees with the uninterrupted run.
+ctl submit "$work/plan.toml" > /dev/null
+for _ in $(seq 600); do
+  n=$(q "select count(*) from measurements where run_id=3" 2>/dev/null || echo 0)
+  [[ "$n" -ge 2 ]] && break
+  sleep 0.05
+done
+[[ "$n" -ge 2 ]] || fail "the third run made no progress"
+stop_gonio_sim
+sleep 3
+restart_gonio_sim "$sim" 5 "$work"
+ctl wait --timeout 180 > "$work/wait3.out" || fail "after the power cycle: $(cat "$work/wait3.out")"
+[[ "$(q "select status from runs where id=3")" == done ]] ||
+  fail "run 3 after the power cycle: $(q "select status from runs where id=3")"
+[[ "$(q "select count(*), count(distinct idx) from measurements where run_id=3")" == "$total|$total" ]] ||
+  fail "run 3: $(q "select count(*), count(distinct idx) from measurements where run_id=3") of $total"
+bad=$(q "select count(*) from measurements a join measurements b on a.idx = b.idx
+         where a.run_id = 3 and b.run_id = 2 and
+         abs(a.value - b.value) > 5 * sqrt(a.sigma * a.sigma + b.sigma * b.sigma)
+            + 0.01 * b.value")
+[[ "$bad" == 0 ]] || fail "$bad points measured across the power cycle disagree with run 2"
+echo "power cycle mid-run: run 3 completed by itself, every point once and as run 2 measured it"
+
 # SIGTERM with the instrument gone (issue #18): goniod does not wait on devices that do not
 # answer; it says so in its log and exits 0, and the run stays for the next start.
 ctl submit "$work/plan.toml" > /dev/null
 for _ in $(seq 600); do
-  n=$(q "select count(*) from measurements where run_id=3" 2>/dev/null || echo 0)
+  n=$(q "select count(*) from measurements where run_id=4" 2>/dev/null || echo 0)
   [[ "$n" -ge 1 ]] && break
   sleep 0.05
 done
-[[ "$n" -ge 1 ]] || fail "the third run made no progress"
+[[ "$n" -ge 1 ]] || fail "the fourth run made no progress"
 stop_gonio_sim
 sleep 1
 t0=$(date +%s%N)
@@ -179,6 +207,6 @@ ms=$(((t1 - t0) / 1000000))
 ((ms < 8000)) || fail "goniod took $ms ms to stop with the instrument gone"
 grep -Eq "\[state\] (stopped|the run's worker is still waiting on a device)" "$work/goniod.log" ||
   fail "no stop in the log"
-[[ "$(q "select status from runs where id=3")" =~ ^(paused|running)$ ]] ||
-  fail "run 3 after the stop: $(q "select status from runs where id=3")"
+[[ "$(q "select status from runs where id=4")" =~ ^(paused|running)$ ]] ||
+  fail "run 4 after the stop: $(q "select status from runs where id=4")"
 echo "SIGTERM with the instrument gone: stopped in $ms ms"

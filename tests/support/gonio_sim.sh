@@ -25,3 +25,16 @@ stop_gonio_sim() {
   wait "$sim_pid" 2>/dev/null || true
   sim_pid=""
 }
+
+# restart_gonio_sim SIM SPEED WORK: gonio-sim started again on the ports it had (a power cycle:
+# the instrument config written by start_gonio_sim still points at it); sets sim_pid.
+restart_gonio_sim() {
+  local sim=$1 speed=$2 work=$3
+  "$sim" --speed "$speed" --port "$(cat "$work/port")" --monitor-port "$(cat "$work/mport")" \
+    >> "$work/sim.log" 2>&1 &
+  sim_pid=$!
+  for _ in $(seq 200); do
+    (exec 3<>"/dev/tcp/127.0.0.1/$(cat "$work/port")") 2>/dev/null && break
+    sleep 0.05
+  done
+}

@@ -189,6 +189,10 @@ TEST_F(CameraDriver, ARetrievalLostAfterExposeIsAnErrorAndNotRetried) {
   auto r = cam->Retrieve();
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, ErrorCode::kFailedPrecondition);
+  // Long enough (50 ms of real time at x100) for Expose to see the sensor integrate: a 1 ms
+  // exposure can begin and end between two status reads, and then only its frame would show
+  // that it ended, which this test drops (it failed so under ASan in CI).
+  ASSERT_TRUE(cam->SetExposure(5.0).ok());
   sim_camera->DropFrames(1);
   const Status exposed = cam->Expose();
   ASSERT_TRUE(exposed.ok()) << exposed.error().message;

@@ -53,6 +53,23 @@ start_daemon() {
 }
 ctl() { "$ctl" --url "$url" --token-file "$db.token" "$@"; }
 q() { sqlite3 "$db" "$1"; }
+# wait_points RUN N: waits (30 s at most) until run RUN has N measurements; fails otherwise.
+wait_points() {
+  local n=0
+  for _ in $(seq 600); do
+    n=$(q "select count(*) from measurements where run_id=$1" 2>/dev/null || echo 0)
+    [[ "$n" -ge $2 ]] && return 0
+    sleep 0.05
+  done
+  fail "run $1 made no progress ($n of $2 points)"
+}
+# disagreeing RUN REF: how many of run RUN's points differ from run REF's by more than 5 sigma
+# (combined) + 1 %.
+disagreeing() {
+  q "select count(*) from measurements a join measurements b on a.idx = b.idx
+     where a.run_id = $1 and b.run_id = $2 and
+     abs(a.value - b.value) > 5 * sqrt(a.sigma * a.sigma + b.sigma * b.sigma) + 0.01 * b.value"
+}
 
 start_daemon
 mode=$(stat -c %a "$db.token")
@@ -76,12 +93,7 @@ grep -q "bad.toml:[0-9]*:" "$work/bad.out" || fail "no file:line in: $(cat "$wor
 # A run, stopped by SIGTERM after a few points, in the middle of its frames; a second job waits.
 ctl submit "$work/plan.toml" > /dev/null
 ctl submit "$work/plan.toml" > /dev/null
-for _ in $(seq 600); do
-  done_now=$(q "select count(*) from measurements" 2>/dev/null || echo 0)
-  [[ "$done_now" -ge 3 ]] && break
-  sleep 0.05
-done
-[[ "$done_now" -ge 3 ]] || fail "no progress"
+wait_points 1 3
 sleep 0.4
 t0=$(date +%s%N)
 kill -TERM $daemon
@@ -117,10 +129,7 @@ distinct=$(q "select count(distinct idx) from measurements where run_id=1")
 # The interrupted and resumed run measured what the uninterrupted one did: every point within
 # 5 sigma of run 2's (a frame left in flight by the interrupt used to pair every later frame
 # with the wrong trigger after the restart).
-bad=$(q "select count(*) from measurements a join measurements b on a.idx = b.idx
-         where a.run_id = 1 and b.run_id = 2 and
-         abs(a.value - b.value) > 5 * sqrt(a.sigma * a.sigma + b.sigma * b.sigma)
-            + 0.01 * b.value")
+bad=$(disagreeing 1 2)
 [[ "$bad" == 0 ]] || fail "$bad points of the resumed run disagree with the second run"
 [[ "$(q "select count(distinct idx) from measurements where run_id=2")" == "$total" ]] ||
   fail "the queued job's run is incomplete"
@@ -164,12 +173,7 @@ echo "restart resumed the run: $total/$total points, each once"
 # measured again (the engine sees the devices reconnected), the run continues by itself, and
 # every point agrees with the uninterrupted run.
 ctl submit "$work/plan.toml" > /dev/null
-for _ in $(seq 600); do
-  n=$(q "select count(*) from measurements where run_id=3" 2>/dev/null || echo 0)
-  [[ "$n" -ge 2 ]] && break
-  sleep 0.05
-done
-[[ "$n" -ge 2 ]] || fail "the third run made no progress"
+wait_points 3 2
 stop_gonio_sim
 sleep 3
 restart_gonio_sim "$sim" 5 "$work"
@@ -178,22 +182,14 @@ ctl wait --timeout 180 > "$work/wait3.out" || fail "after the power cycle: $(cat
   fail "run 3 after the power cycle: $(q "select status from runs where id=3")"
 [[ "$(q "select count(*), count(distinct idx) from measurements where run_id=3")" == "$total|$total" ]] ||
   fail "run 3: $(q "select count(*), count(distinct idx) from measurements where run_id=3") of $total"
-bad=$(q "select count(*) from measurements a join measurements b on a.idx = b.idx
-         where a.run_id = 3 and b.run_id = 2 and
-         abs(a.value - b.value) > 5 * sqrt(a.sigma * a.sigma + b.sigma * b.sigma)
-            + 0.01 * b.value")
+bad=$(disagreeing 3 2)
 [[ "$bad" == 0 ]] || fail "$bad points measured across the power cycle disagree with run 2"
 echo "power cycle mid-run: run 3 completed by itself, every point once and as run 2 measured it"
 
 # SIGTERM with the instrument gone (issue #18): goniod does not wait on devices that do not
 # answer; it says so in its log and exits 0, and the run stays for the next start.
 ctl submit "$work/plan.toml" > /dev/null
-for _ in $(seq 600); do
-  n=$(q "select count(*) from measurements where run_id=4" 2>/dev/null || echo 0)
-  [[ "$n" -ge 1 ]] && break
-  sleep 0.05
-done
-[[ "$n" -ge 1 ]] || fail "the fourth run made no progress"
+wait_points 4 1
 stop_gonio_sim
 sleep 1
 t0=$(date +%s%N)

@@ -24,6 +24,7 @@ Result<std::unique_ptr<Instrument>> Instrument::Start(SimConfig config,
   auto tcp = StageModbusTcpServer::Start(raw, c.modbus_port, in->faults_.get(), in->clock_.get());
   if (!tcp.ok()) return tcp.error();
   in->tcp_ = std::move(tcp).value();
+  in->modbus_port_ = in->tcp_->port();
   if (!c.rtu_link.empty()) {
     auto rtu = StageModbusRtuServer::Start(raw, c.rtu_link, in->faults_.get(), in->clock_.get());
     if (!rtu.ok()) return rtu.error();
@@ -54,6 +55,18 @@ Instrument::~Instrument() {
   tcp_.reset();
 }
 
+void Instrument::StopStageServer() { tcp_.reset(); }
+
+Status Instrument::StartStageServer() {
+  if (tcp_) return OkStatus();
+  std::vector<SimulatedAxis*> raw;
+  for (const auto& a : axes_) raw.push_back(a.get());
+  auto tcp = StageModbusTcpServer::Start(raw, modbus_port_, faults_.get(), clock_.get());
+  if (!tcp.ok()) return tcp.error();
+  tcp_ = std::move(tcp).value();
+  return OkStatus();
+}
+
 StageAngles Instrument::Angles() const {
   std::vector<double> steps;
   steps.reserve(axes_.size());
@@ -67,7 +80,7 @@ config::InstrumentConfig Instrument::ClientConfig() const {
   c.camera.address = config_.camera.address;
   c.stage_link.kind = "tcp";
   c.stage_link.host = "127.0.0.1";
-  c.stage_link.port = tcp_->port();
+  c.stage_link.port = modbus_port_;
   for (std::size_t k = 0; k < config_.axes.size(); ++k) {
     const AxisConfig& a = config_.axes[k];
     devices::AxisSettings s;

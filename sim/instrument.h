@@ -53,7 +53,12 @@ class Instrument {
   // The axes in the order of config().axes.
   const std::vector<std::unique_ptr<SimulatedAxis>>& axes() const { return axes_; }
   StageAngles Angles() const;  // what the stages show the camera now
-  int modbus_port() const { return tcp_->port(); }
+  int modbus_port() const { return modbus_port_; }
+  // The stages' Modbus TCP server goes away (its connections close, nothing listens on its
+  // port) and comes back on the same port: a gateway or controller power-cycled while the axes
+  // keep their state. Start is an error when the port is taken meanwhile.
+  void StopStageServer();
+  Status StartStageServer();
   const StageModbusRtuServer* rtu() const { return rtu_.get(); }
   SimulatedCamera* camera() { return camera_.get(); }                    // null when disabled
   SimulatedPowerMeter* meter() { return meter_.get(); }                  // null when disabled
@@ -71,6 +76,7 @@ class Instrument {
   std::unique_ptr<Scene> scene_;
   std::unique_ptr<SimulatedPowerMeter> meter_;
   std::unique_ptr<StageModbusTcpServer> tcp_;
+  int modbus_port_ = 0;
   std::unique_ptr<StageModbusRtuServer> rtu_;
   std::unique_ptr<MonitorSocketServer> monitor_;
   std::unique_ptr<SimulatedCamera> camera_;

@@ -483,8 +483,11 @@ void Controller::Worker() {
       lock.lock();
       if (state_ != State::kSuspended || shutdown_) continue;
       if (!why) {
-        events_.Publish("suspend", {{"cleared", true}, {"run", *current_->run}});
-        if (current_->run) (void)db_.AddEvent(*current_->run, "suspend_cleared", reason_);
+        // A device fault's retry is logged as cleared only once a point is measured (OnPoint).
+        if (fault_logged_.empty()) {
+          events_.Publish("suspend", {{"cleared", true}, {"run", *current_->run}});
+          if (current_->run) (void)db_.AddEvent(*current_->run, "suspend_cleared", reason_);
+        }
         resume_requested_ = true;
         continue;
       }
@@ -564,7 +567,8 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   }
   job.state = JobState::kRunning;
   SaveJob(job);
-  SetState(State::kRunning, "");
+  // A retry after a device fault runs (pause and abort act on it as on any run) and says so.
+  SetState(State::kRunning, fault_logged_.empty() ? "" : "retrying after " + fault_logged_);
 
   lock.unlock();
   acquisition::Engine engine(stages_, camera_, monitor_, db_, o_.engine);
@@ -576,21 +580,29 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   if (!current_) return;  // cannot happen: only the worker finishes a running job
   const StopReason why = stop_reason_;
   if (!s.ok()) {
-    // A device fault the drivers' retries did not clear: the engine left the run paused.
-    (void)db_.AddEvent(run, "suspend", "device fault: " + s.error().message);
+    // A device fault the drivers' retries did not clear: the engine left the run paused. The
+    // worker retries each poll interval; only the outage's first failure (or a new one) is logged.
+    const std::string fault = s.error().code == ErrorCode::kDeviceFault
+                                  ? s.error().ToString()
+                                  : "device fault: " + s.error().ToString();
     current_->state = JobState::kPaused;
     SaveJob(*current_);
+    if (suspended_since_ == 0 || fault != fault_logged_) {
+      (void)db_.AddEvent(run, "suspend", fault);
+      events_.Publish("suspend", {{"run", run}, {"reason", fault}});
+      fault_logged_ = fault;
+    }
     if (why == StopReason::kAbort) {
+      fault_logged_.clear();
       FinishCurrent(JobState::kAborted, "aborted by the operator (after a device fault)");
       SetState(State::kIdle, "");
       return;
     }
     if (suspended_since_ == 0) suspended_since_ = NowS();
-    events_.Publish("suspend", {{"run", run}, {"reason", s.error().ToString()}});
     if (NowS() - suspended_since_ > o_.suspenders.fault_give_up_s) {
-      SetState(State::kFault, "device fault not cleared by retries: " + s.error().ToString());
+      SetState(State::kFault, "not cleared by retries: " + fault);
     } else {
-      SetState(State::kSuspended, "device fault: " + s.error().ToString());
+      SetState(State::kSuspended, fault);
     }
     return;
   }
@@ -637,6 +649,16 @@ void Controller::OnPoint(const Progress& p) {
   const auto why = SuspendCondition();  // worker thread: devices are ours between points
   std::lock_guard lock(mu_);
   progress_ = p;
+  if (!fault_logged_.empty() && current_ && current_->run) {
+    const double gap = suspended_since_ > 0 ? NowS() - suspended_since_ : 0;
+    const std::string what = "measuring again after " +
+                             std::to_string(static_cast<int>(std::lround(gap))) + " s (" +
+                             std::to_string(p.done) + " of " + std::to_string(p.total) +
+                             " points done); it was " + fault_logged_;
+    (void)db_.AddEvent(*current_->run, "suspend_cleared", what);
+    events_.Publish("suspend", {{"cleared", true}, {"run", *current_->run}});
+  }
+  fault_logged_.clear();
   suspended_since_ = 0;  // a point was measured: whatever suspended the run has cleared
   nlohmann::json event = ToJson(p);
   event["run"] = current_ && current_->run ? *current_->run : 0;

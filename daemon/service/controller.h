@@ -170,6 +170,9 @@ class Controller {
   bool resume_requested_ = false;
   bool shutdown_ = false;
   double suspended_since_ = 0;
+  // The device fault logged for the outage in hand ("" when none): a retry that fails the same
+  // way logs nothing more, and the first point measured after it logs the outage's end.
+  std::string fault_logged_;
   StopReason stop_reason_ = StopReason::kNone;
   std::atomic<bool> stop_{false};
   std::atomic<bool> interrupt_{false};  // Shutdown: the point in hand is abandoned (pending)

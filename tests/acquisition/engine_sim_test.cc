@@ -34,8 +34,8 @@ class EngineOnSim : public ::testing::Test {
     return sim::MicrofacetTruth("beckmann", 0.344, 1.51);
   }
   void SetUp() override {
-    const Status started =
-        inst.Start({.clock_speed = 300, .gain_db = 12, .lamp = LampOpts(), .truth = Truth()});
+    const Status started = inst.Start(
+        {.clock_speed = 300, .gain_db = 12, .lamp = LampOpts(), .truth = Truth(), .faults = {}});
     ASSERT_TRUE(started.ok()) << started.error().message;
     db_path = (std::filesystem::temp_directory_path() /
                ("gonio_engine_" + std::to_string(::getpid()) + ".sqlite"))

@@ -51,9 +51,10 @@ height = 19
 class DaemonApi : public ::testing::Test {
  protected:
   virtual Suspenders Suspend() { return {}; }
+  virtual gonio::testing::SimInstrumentOptions Sim() { return {}; }
 
   void SetUp() override {
-    const Status started = inst.Start({});
+    const Status started = inst.Start(Sim());
     ASSERT_TRUE(started.ok()) << started.error().message;
     db_path = (std::filesystem::temp_directory_path() /
                ("gonio_api_" + std::to_string(::getpid()) + ".sqlite"))
@@ -701,6 +702,72 @@ TEST_F(DaemonSuspender, ACoolerFailureSuspendsTheRunUntilTheSensorIsBackInBand) 
   }
   EXPECT_TRUE(suspended);
   EXPECT_TRUE(cleared);
+}
+
+// Issue #18: a device that goes away mid-run and comes back. The run suspends on the device
+// fault, retries each poll interval without logging each retry, continues by itself once the
+// device answers, and logs the outage once and its end once; every point is measured once.
+class DaemonDeviceOutage : public DaemonApi {
+ protected:
+  Suspenders Suspend() override {
+    Suspenders s;
+    s.poll_s = 0.2;  // several failed retries within the outage
+    return s;
+  }
+  // Events of `kind` in the run's log, and their details.
+  std::vector<std::string> Events(std::int64_t run, const std::string& kind) {
+    std::vector<std::string> out;
+    auto events = store->Events(run);
+    EXPECT_TRUE(events.ok());
+    if (events.ok())
+      for (const auto& e : *events)
+        if (e.kind == kind) out.push_back(e.detail);
+    return out;
+  }
+};
+
+TEST_F(DaemonDeviceOutage, AStageServerThatGoesAwayAndComesBackIsUsedAgain) {
+  const auto job = SubmitPlan();
+  ASSERT_TRUE(WaitFor([&] { return Done() >= 3; }, 60));
+  inst.simulated->StopStageServer();  // mid-run: between points or during a move
+  ASSERT_TRUE(WaitFor([&] { return State() == "suspended"; }, 30)) << State();
+  const int held = Done();
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // ~7 retries fail meanwhile
+  EXPECT_EQ(Done(), held) << "measured with the stages gone";
+  ASSERT_TRUE(inst.simulated->StartStageServer().ok());
+  const std::int64_t run = FinishedRun(job);
+  const auto suspends = Events(run, "suspend");
+  const auto cleared = Events(run, "suspend_cleared");
+  ASSERT_EQ(suspends.size(), 1u) << "each failed retry logged";
+  EXPECT_EQ(suspends[0].rfind("device fault: ", 0), 0u) << suspends[0];
+  EXPECT_EQ(suspends[0].find("device fault: device fault"), std::string::npos) << suspends[0];
+  ASSERT_EQ(cleared.size(), 1u);
+  EXPECT_NE(cleared[0].find("measuring again after"), std::string::npos) << cleared[0];
+  EXPECT_GT(inst.stages->Reconnections(), 0);
+}
+
+// The source monitor leaves the bus for 900 simulated seconds (3 s real) at its 12th query,
+// mid-run (two frames a point: three queries each).
+class DaemonMonitorUnplugged : public DaemonDeviceOutage {
+ protected:
+  gonio::testing::SimInstrumentOptions Sim() override {
+    gonio::testing::SimInstrumentOptions o;
+    sim::FaultEvent away = sim::OnOpportunity(sim::FaultKind::kMonitorDisconnect, 12);
+    away.duration_s = 900;
+    o.faults = {away};
+    return o;
+  }
+};
+
+TEST_F(DaemonMonitorUnplugged, TheRunWaitsForTheMonitorAndGoesOnWhenItIsBack) {
+  const auto job = SubmitPlan();
+  ASSERT_TRUE(WaitFor([&] { return State() == "suspended"; }, 60)) << State();
+  const std::int64_t run = FinishedRun(job);
+  ASSERT_EQ(inst.simulated->faults().Fired().size(), 1u);
+  const auto suspends = Events(run, "suspend");
+  ASSERT_EQ(suspends.size(), 1u) << "each failed retry logged";
+  EXPECT_NE(suspends[0].find("device fault"), std::string::npos) << suspends[0];
+  EXPECT_EQ(Events(run, "suspend_cleared").size(), 1u);
 }
 
 }  // namespace

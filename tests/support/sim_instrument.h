@@ -20,6 +20,7 @@ struct SimInstrumentOptions {
   double gain_db = 12;  // more counts per electron: the stray floor is reached sooner
   sim::LampOptions lamp{.drift_per_hour = 0, .wander_amplitude = 0, .flicker_rms = 0};
   std::shared_ptr<const sim::GroundTruth> truth;  // null: Walter 2007's ground glass
+  std::vector<sim::FaultEvent> faults;            // injected by the simulated devices
 };
 
 class SimInstrument {
@@ -29,6 +30,7 @@ class SimInstrument {
   Status Start(const SimInstrumentOptions& o) {
     sim::SimConfig c = sim::TwoAxisConfig(o.clock_speed);
     c.lamp = o.lamp;
+    c.faults = o.faults;
     auto started = sim::Instrument::Start(
         c, o.truth ? o.truth : sim::MicrofacetTruth("beckmann", 0.344, 1.51));
     if (!started.ok()) return started.error();

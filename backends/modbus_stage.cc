@@ -59,9 +59,14 @@ Result<std::unique_ptr<ModbusStageController>> ModbusStageController::Open(
   }
   if (c->ctx_ == nullptr)
     return InvalidArgument("stage link: " + std::string(modbus_strerror(errno)));
+  // The same bound for the first byte of a reply and for a silence within one (libmodbus's
+  // byte timeout, 0.5 s by default whatever the response timeout): a reply that stops part-way
+  // costs no more than one that never comes.
   const double t = l.response_timeout_s;
-  modbus_set_response_timeout(Ctx(c->ctx_), static_cast<std::uint32_t>(t),
-                              static_cast<std::uint32_t>((t - std::floor(t)) * 1e6));
+  const auto sec = static_cast<std::uint32_t>(t);
+  const auto usec = static_cast<std::uint32_t>((t - std::floor(t)) * 1e6);
+  modbus_set_response_timeout(Ctx(c->ctx_), sec, usec);
+  modbus_set_byte_timeout(Ctx(c->ctx_), sec, usec);
   if (Status s = c->Connect(); !s.ok()) return s.error();
   for (const AxisSettings& a : c->axes_) {
     auto st = c->ReadStatus(a.name);

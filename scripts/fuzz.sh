@@ -5,10 +5,11 @@
 # Prints executions and crashes per target; exits 1 if any target crashed.
 # Usage: scripts/fuzz.sh TARGET|all [SECONDS=60]
 #   targets: plan_fuzz schedule_fuzz samples_csv_fuzz instrument_config_fuzz sim_config_fuzz
-#            usbtmc_fuzz
+#            usbtmc_fuzz http_api_fuzz modbus_reply_fuzz
 set -euo pipefail
 cd "$(dirname "$0")/.."
-all=(plan_fuzz schedule_fuzz samples_csv_fuzz instrument_config_fuzz sim_config_fuzz usbtmc_fuzz)
+all=(plan_fuzz schedule_fuzz samples_csv_fuzz instrument_config_fuzz sim_config_fuzz usbtmc_fuzz
+     http_api_fuzz modbus_reply_fuzz)
 what=${1:?"usage: scripts/fuzz.sh TARGET|all [SECONDS]"} seconds=${2:-60}
 if [[ "$what" == all ]]; then
   targets=("${all[@]}")

@@ -1,6 +1,7 @@
 #include "daemon/api/http_api.h"
 
 #include <httplib.h>
+#include <malloc.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -149,6 +150,8 @@ std::optional<int> IntField(const json& body, const char* name, int fallback, in
 }
 
 }  // namespace
+
+void ReturnLargeBlocksToTheSystem() { ::mallopt(M_MMAP_THRESHOLD, 1 << 20); }
 
 std::string NewToken() {
   std::random_device rd;  // the kernel's random source

@@ -69,6 +69,12 @@ class ApiServer {
   static constexpr int kRequestThreads = 8;
 };
 
+// Makes glibc give every freed block of 1 MiB or more back to the system (a fixed mmap
+// threshold; glibc's own adapts up to 32 MiB and keeps what is below it for reuse). cpp-httplib
+// 0.11 reads a request line whole before it refuses it (414), so without this a few long lines
+// from any local client stay resident in goniod for good. Process-wide: call once at start.
+void ReturnLargeBlocksToTheSystem();
+
 // A token for a new token file: 32 hex digits from the system's random source.
 std::string NewToken();
 // Reads the token file, creating it (mode 0640, a new token) when it does not exist.

@@ -107,6 +107,7 @@ int main(int argc, char** argv) {
   if (!cfg.ok()) return Fail(cfg.error());
   auto specimens = acquisition::LoadSpecimens(samples_path);
   if (!specimens.ok()) return Fail(specimens.error());
+  daemon::ReturnLargeBlocksToTheSystem();  // what a refused large request held goes back
   auto token = daemon::LoadOrCreateToken(token_file);
   if (!token.ok()) return Fail(token.error());
   auto db = acquisition::Storage::Open(db_path);

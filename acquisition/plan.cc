@@ -196,6 +196,9 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
 
 // The checks every plan passes last, and its text.
 Result<Plan> Finish(Reader& r, const toml::table& root, const PlanContext& context, Plan p) {
+  if (!context.camera_missing.empty())
+    return r.Fail(nullptr,
+                  "this instrument cannot measure a run: its camera has " + context.camera_missing);
   const toml::table* g = root["geometry"].as_table();
   // Every incidence must be reachable by the sample axis: a plan that cannot do what it says
   // is refused, not quietly thinned (single view angles beyond reach are only skipped).

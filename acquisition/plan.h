@@ -99,6 +99,9 @@ struct PlanContext {
   std::vector<Specimen> specimens;
   std::vector<devices::AxisSettings> axes;  // travel limits
   int image_width = 0, image_height = 0;    // 0: not checked
+  // What a run needs of the camera: every point records the sensor temperature, and darks need
+  // the shutter. A plan for a camera without either is refused (naming what is missing).
+  std::string camera_missing;  // "" when the camera has both
   // The bench's optics and the camera's region (the rectangle is the plan's), for plans whose
   // rectangle is chosen by the response ([rectangle] auto); nullopt: the config has no [bench].
   std::optional<fitting::ResponseSetup> response;

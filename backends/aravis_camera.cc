@@ -20,6 +20,26 @@ Status Check(GError* e, const std::string& what, ErrorCode code = ErrorCode::kIo
   return err;
 }
 
+bool Has(ArvDevice* dev, const std::string& name) {
+  return !name.empty() && arv_device_get_feature(dev, name.c_str()) != nullptr;
+}
+
+// Writes a number with the feature's own GenICam type (SFNC makes BlackLevel a Float; older
+// cameras have an Integer): a Float as it is, an Integer rounded.
+Status SetNumber(ArvDevice* dev, const std::string& name, double value) {
+  ArvGcNode* node = arv_device_get_feature(dev, name.c_str());
+  if (node == nullptr) return Error{ErrorCode::kInvalidArgument, name + ": no such feature"};
+  GError* e = nullptr;
+  if (ARV_IS_GC_FLOAT(node)) {
+    arv_device_set_float_feature_value(dev, name.c_str(), value, &e);
+  } else if (ARV_IS_GC_INTEGER(node)) {
+    arv_device_set_integer_feature_value(dev, name.c_str(), std::llround(value), &e);
+  } else {
+    return Error{ErrorCode::kInvalidArgument, name + " is neither a Float nor an Integer feature"};
+  }
+  return Check(e, name);
+}
+
 double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -145,10 +165,8 @@ Status AravisCamera::Configure() {
     return s;
   arv_camera_set_gain(camera_, s_.gain_db, &e);
   if (Status s = Check(e, "Gain"); !s.ok()) return s;
-  if (s_.black_level >= 0) {
-    arv_device_set_integer_feature_value(dev, "BlackLevel", s_.black_level, &e);
-    if (Status s = Check(e, "BlackLevel"); !s.ok()) return s;
-  }
+  if (s_.black_level >= 0)
+    if (Status s = SetNumber(dev, "BlackLevel", s_.black_level); !s.ok()) return s;
   arv_camera_set_acquisition_mode(camera_, ARV_ACQUISITION_MODE_CONTINUOUS, &e);
   if (Status s = Check(e, "AcquisitionMode"); !s.ok()) return s;
   arv_device_set_string_feature_value(dev, "TriggerSelector", "FrameStart", &e);
@@ -162,7 +180,11 @@ Status AravisCamera::Configure() {
   // The exposure's end, if the camera reports it: the selector is set once; a camera without the
   // features (or the selector's entry) reads out every frame before the stages move.
   const VendorFeatures& f = s_.features;
-  reports_end_ = !f.status.empty() && arv_device_get_feature(dev, f.status.c_str()) != nullptr;
+  caps_.temperature = Has(dev, f.temperature) &&
+                      (f.temperature_selector.empty() || Has(dev, f.temperature_selector));
+  caps_.cooler = Has(dev, f.control_mode) && Has(dev, f.setpoint);
+  caps_.shutter = Has(dev, f.shutter);
+  reports_end_ = Has(dev, f.status);
   if (reports_end_ && !f.status_selector.empty()) {
     arv_device_set_string_feature_value(dev, f.status_selector.c_str(),
                                         f.status_selector_value.c_str(), &e);
@@ -171,6 +193,7 @@ Status AravisCamera::Configure() {
       reports_end_ = false;
     }
   }
+  caps_.exposure_end = reports_end_;
   return OkStatus();
 }
 
@@ -423,6 +446,10 @@ Result<double> AravisCamera::TemperatureC() {
   ArvDevice* dev = arv_camera_get_device(camera_);
   GError* e = nullptr;
   const VendorFeatures& c = s_.features;
+  if (!caps_.temperature)
+    return Error{
+        ErrorCode::kFailedPrecondition,
+        "camera " + s_.address + " has no temperature sensor (no feature '" + c.temperature + "')"};
   if (!c.temperature_selector.empty()) {
     arv_device_set_string_feature_value(dev, c.temperature_selector.c_str(),
                                         c.temperature_selector_value.c_str(), &e);
@@ -435,8 +462,11 @@ Result<double> AravisCamera::TemperatureC() {
 
 Status AravisCamera::SetShutter(bool open) {
   const VendorFeatures& c = s_.features;
-  if (c.shutter.empty()) return InvalidArgument("this camera's config names no shutter");
   if (Status st = EnsureConnected(); !st.ok()) return st;
+  if (!caps_.shutter)
+    return Error{ErrorCode::kFailedPrecondition, "camera " + s_.address +
+                                                     " has no shutter (no feature '" + c.shutter +
+                                                     "'): dark frames cannot be taken"};
   GError* e = nullptr;
   arv_device_set_string_feature_value(arv_camera_get_device(camera_), c.shutter.c_str(),
                                       (open ? c.shutter_open : c.shutter_closed).c_str(), &e);
@@ -445,13 +475,12 @@ Status AravisCamera::SetShutter(bool open) {
 
 Status AravisCamera::SetCooling(bool on, double setpoint_c) {
   const VendorFeatures& c = s_.features;
-  if (c.control_mode.empty()) return InvalidArgument("this camera's config names no cooler");
   if (Status st = EnsureConnected(); !st.ok()) return st;
+  if (!caps_.cooler) return NoCooler();
   ArvDevice* dev = arv_camera_get_device(camera_);
   GError* e = nullptr;
   if (on) {
-    arv_device_set_float_feature_value(dev, c.setpoint.c_str(), setpoint_c, &e);
-    if (Status s = Check(e, c.setpoint); !s.ok()) return s;
+    if (Status s = SetNumber(dev, c.setpoint, setpoint_c); !s.ok()) return s;
     if (!c.setpoint_activate.empty()) {
       arv_device_execute_command(dev, c.setpoint_activate.c_str(), &e);
       if (Status s = Check(e, c.setpoint_activate); !s.ok()) return s;
@@ -462,7 +491,15 @@ Status AravisCamera::SetCooling(bool on, double setpoint_c) {
   return Check(e, c.control_mode);
 }
 
+Error AravisCamera::NoCooler() const {
+  return Error{ErrorCode::kFailedPrecondition,
+               "camera " + s_.address + " has no cooler (no feature '" + s_.features.control_mode +
+                   "' with '" + s_.features.setpoint + "'): cooling waits are off"};
+}
+
 Status AravisCamera::CoolAndWait(const TemperatureWait& w) {
+  if (Status st = EnsureConnected(); !st.ok()) return st;
+  if (!caps_.cooler) return NoCooler();
   auto t_start = TemperatureC();
   if (!t_start.ok()) return t_start.error();
   const auto t0 = std::chrono::steady_clock::now();

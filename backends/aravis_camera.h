@@ -36,6 +36,7 @@ class AravisCamera final : public Camera {
   Result<cv::Size> ImageSize() override;
   Result<Frame> Snap() override;
   bool ReportsExposureEnd() const override { return reports_end_; }
+  devices::CameraCapabilities Capabilities() const override { return caps_; }
   Status Expose() override;
   Result<Frame> Retrieve() override;
   Result<double> TemperatureC() override;
@@ -70,14 +71,16 @@ class AravisCamera final : public Camera {
   Error Abandon();
   // SFNC AcquisitionAbort when the camera has it: the frame in hand dropped. False without it.
   bool AbortFrame();
+  Error NoCooler() const;
 
   CameraSettings s_;
   std::string identity_;
   _ArvCamera* camera_ = nullptr;
   _ArvStream* stream_ = nullptr;
   double exposure_s_ = 0.1;
-  std::atomic<int> reopens_{0};  // read by the engine's readout thread (Reconnections)
-  bool reports_end_ = false;     // the status feature exists (Connect)
+  std::atomic<int> reopens_{0};       // read by the engine's readout thread (Reconnections)
+  bool reports_end_ = false;          // the status feature exists (Connect)
+  devices::CameraCapabilities caps_;  // what the node map has of the config's features (Connect)
   bool exposed_ = false;         // Expose() has triggered a frame that Retrieve() has not taken
   _ArvBuffer* early_ = nullptr;  // that frame, when it arrived before the exposure's end was seen
   // Buffers handed out in Frames return to this stream; it outlives them through this token.

@@ -2,6 +2,7 @@
 
 #include <modbus/modbus.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -31,6 +32,12 @@ std::int32_t ToSteps(const AxisSettings& a, double deg) {
 }
 double ToDeg(const AxisSettings& a, std::int32_t steps) {
   return a.degrees_at_zero + steps / a.steps_per_degree;
+}
+
+std::string Seconds(double s) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.3g s", s);
+  return b;
 }
 
 }  // namespace
@@ -179,19 +186,15 @@ std::string ModbusStageController::AlarmText(const AxisSettings& a, std::uint32_
          "); check the stage, then reset the alarm";
 }
 
-Result<AxisStatus> ModbusStageController::ReadStatus(const std::string& name) {
-  auto found = Find(name);
-  if (!found.ok()) return found.error();
-  const AxisSettings& a = **found;
-  std::uint16_t st[4], pos[2];  // output status and present alarm are adjacent in the profile
-  AxisStatus s;
+Result<AxisStatus> ModbusStageController::ReadBits(const AxisSettings& a) {
+  std::uint16_t st[4];  // output status and present alarm, adjacent in the default profile
   if (p_.present_alarm == p_.output_status + 2) {
     if (Status r = Read(a, p_.output_status, 4, st, "status"); !r.ok()) return r.error();
   } else {
     if (Status r = Read(a, p_.output_status, 2, st, "status"); !r.ok()) return r.error();
     if (Status r = Read(a, p_.present_alarm, 2, st + 2, "alarm"); !r.ok()) return r.error();
   }
-  if (Status r = Read(a, p_.command_position, 2, pos, "position"); !r.ok()) return r.error();
+  AxisStatus s;
   const std::uint32_t out = (std::uint32_t(st[0]) << 16) | st[1];
   s.alarm = (std::uint32_t(st[2]) << 16) | st[3];
   s.ready = out & p_.out_ready;
@@ -199,20 +202,129 @@ Result<AxisStatus> ModbusStageController::ReadStatus(const std::string& name) {
   s.in_position = out & p_.out_in_pos;
   s.homed = out & p_.out_home_end;
   if (out & p_.out_alarm && s.alarm == 0) s.alarm = 0xFFFF;  // alarm bit without a code
-  s.position_deg = ToDeg(a, static_cast<std::int32_t>((std::uint32_t(pos[0]) << 16) | pos[1]));
   return s;
+}
+
+Status ModbusStageController::ReadPositions(const AxisSettings& a, AxisStatus& s) {
+  auto steps = [](const std::uint16_t* r) {
+    return static_cast<std::int32_t>((std::uint32_t(r[0]) << 16) | r[1]);
+  };
+  const int lo = std::min(p_.command_position, p_.feedback_position);
+  const int hi = std::max(p_.command_position, p_.feedback_position);
+  std::uint16_t r[10];
+  if (hi - lo <= 8) {  // one request for both (the default profile: 0x00C6..0x00CD)
+    if (Status st = Read(a, static_cast<std::uint16_t>(lo), hi - lo + 2, r, "position"); !st.ok())
+      return st;
+    s.commanded_deg = ToDeg(a, steps(r + (p_.command_position - lo)));
+    s.position_deg = ToDeg(a, steps(r + (p_.feedback_position - lo)));
+  } else {
+    if (Status st = Read(a, p_.command_position, 2, r, "commanded position"); !st.ok()) return st;
+    if (Status st = Read(a, p_.feedback_position, 2, r + 2, "feedback position"); !st.ok())
+      return st;
+    s.commanded_deg = ToDeg(a, steps(r));
+    s.position_deg = ToDeg(a, steps(r + 2));
+  }
+  return OkStatus();
+}
+
+Result<AxisStatus> ModbusStageController::ReadStatus(const std::string& name) {
+  auto found = Find(name);
+  if (!found.ok()) return found.error();
+  const AxisSettings& a = **found;
+  auto s = ReadBits(a);
+  if (!s.ok()) return s.error();
+  if (Status r = ReadPositions(a, *s); !r.ok()) return r.error();
+  Remember(a, *s, true);
+  return s;
+}
+
+void ModbusStageController::Remember(const AxisSettings& a, const AxisStatus& s, bool positions) {
+  std::lock_guard lock(mu_);
+  auto [it, added] = last_known_.try_emplace(a.name, s);
+  if (added) return;
+  const double pos = it->second.position_deg, cmd = it->second.commanded_deg;
+  it->second = s;
+  if (!positions) it->second.position_deg = pos, it->second.commanded_deg = cmd;
+}
+
+std::string ModbusStageController::LastKnown() {
+  std::lock_guard lock(mu_);
+  std::string text;
+  for (const AxisSettings& a : axes_) {
+    auto it = last_known_.find(a.name);
+    text += (text.empty() ? "" : ", ") + ("'" + a.name + "' ");
+    if (it == last_known_.end()) {
+      text += "never read";
+      continue;
+    }
+    char b[64];
+    std::snprintf(b, sizeof b, "at %.3f deg", it->second.position_deg);
+    text += b;
+    text += it->second.moving ? " and moving" : " at rest";
+  }
+  return text;
+}
+
+std::string ModbusStageController::BitsText(const AxisStatus& s) const {
+  std::string t;
+  auto add = [&](bool on, const char* name) {
+    if (on) t += (t.empty() ? "" : " ") + std::string(name);
+  };
+  add(s.ready, "READY");
+  add(s.moving, "MOVE");
+  add(s.in_position, "IN-POS");
+  add(s.homed, "HOME-END");
+  add(s.alarm != 0, "ALM-A");
+  return t.empty() ? "no status bit on" : t;
+}
+
+Status ModbusStageController::WaitReady(const AxisSettings& a, const char* before) {
+  const auto deadline =
+      std::chrono::steady_clock::now() + std::chrono::duration<double>(p_.ready_timeout_s);
+  for (;;) {
+    auto st = ReadBits(a);
+    if (!st.ok()) return st.error();
+    if (st->alarm != 0) return Error{ErrorCode::kDeviceFault, AlarmText(a, st->alarm)};
+    if (st->ready) return OkStatus();
+    if (std::chrono::steady_clock::now() > deadline)
+      return Error{ErrorCode::kDeviceFault,
+                   "axis '" + a.name + "' not READY after " + Seconds(p_.ready_timeout_s) +
+                       " (status: " + BitsText(*st) + "), so " + before +
+                       " was not sent: another client may be moving it, or a STOP is held on"};
+    std::this_thread::sleep_for(PollInterval());
+  }
+}
+
+std::chrono::microseconds ModbusStageController::PollInterval() const {
+  const double s = link_.poll_interval_s > 0 ? link_.poll_interval_s
+                   : link_.kind == "rtu"     ? 0.02
+                                             : 0.005;
+  return std::chrono::microseconds(std::lround(s * 1e6));
+}
+
+Status ModbusStageController::Command(const AxisSettings& a, std::uint16_t address,
+                                      std::uint32_t value, const std::string& what) {
+  // Latched inputs act on an off-to-on edge and stay as written: clear before (something may
+  // have left the bit on) and after (a STOP held on blocks every later move). A STOP is sent
+  // first of all: it must not wait for a clearing write.
+  const bool stop = address == p_.input_command && value == p_.in_stop;
+  if (p_.inputs_latched && !stop)
+    if (Status s = Write32(a, address, 0, what + " (clearing)"); !s.ok()) return s;
+  if (Status s = Write32(a, address, value, what); !s.ok()) return s;
+  if (p_.inputs_latched) return Write32(a, address, 0, what + " (clearing)");
+  return OkStatus();
 }
 
 Status ModbusStageController::ResetAlarm(const std::string& name) {
   auto found = Find(name);
   if (!found.ok()) return found.error();
-  return Write32(**found, p_.alarm_reset, 1, "alarm reset");
+  return Command(**found, p_.alarm_reset, 1, "alarm reset");
 }
 
 Status ModbusStageController::StopAll() {
   Status first = OkStatus();
   for (const AxisSettings& a : axes_) {  // every axis, even if one fails
-    Status s = Write32(a, p_.input_command, p_.in_stop, "STOP");
+    Status s = Command(a, p_.input_command, p_.in_stop, "STOP");
     if (!s.ok() && first.ok()) first = s;
   }
   return first;
@@ -241,23 +353,35 @@ Status ModbusStageController::WaitAll(const std::vector<const AxisSettings*>& li
     for (std::size_t k = 0; k < list.size(); ++k) {
       if (done[k]) continue;
       const AxisSettings& a = *list[k];
-      auto st = ReadStatus(a.name);
-      if (!st.ok()) {
-        (void)StopAll();
-        return st.error();
-      }
+      // One request per axis per poll (status and alarm); positions once it says it is done.
+      auto st = ReadBits(a);
+      if (!st.ok()) return Lost(st.error());
+      Remember(a, *st, false);
       if (st->alarm != 0) {
         (void)StopAll();  // the others must not go on moving
         return Error{ErrorCode::kDeviceFault, AlarmText(a, st->alarm)};
       }
-      // Done: at rest, in position (or homed), and at the target - a status read right after
-      // the trigger might still show the previous IN-POS.
-      const bool at_target =
-          homing || std::abs(st->position_deg - targets_deg[k]) <= a.tolerance_deg;
-      if (!st->moving && (homing ? st->homed : st->in_position) && at_target) {
-        done[k] = true;
-      } else {
+      if (st->moving || !(homing ? st->homed : st->in_position)) {
         all = false;
+        continue;
+      }
+      if (Status r = ReadPositions(a, *st); !r.ok()) return Lost(r.error());
+      Remember(a, *st, true);
+      if (homing || std::abs(st->position_deg - targets_deg[k]) <= a.tolerance_deg) {
+        done[k] = true;
+      } else if (std::abs(st->commanded_deg - targets_deg[k]) <= a.tolerance_deg) {
+        // The controller has finished the profile but the encoder is elsewhere: a stall the
+        // controller did not alarm on (a deviation under its threshold).
+        (void)StopAll();
+        char b[160];
+        std::snprintf(b, sizeof b,
+                      "axis '%s' stalled: commanded to %.4f deg, the encoder reads %.4f deg "
+                      "(feedback register %s); stages stopped",
+                      a.name.c_str(), st->commanded_deg, st->position_deg,
+                      Hex(p_.feedback_position).c_str());
+        return Error{ErrorCode::kDeviceFault, b};
+      } else {
+        all = false;  // a stale IN-POS read right after the trigger: not there yet
       }
     }
     if (all) return OkStatus();
@@ -268,10 +392,19 @@ Status ModbusStageController::WaitAll(const std::vector<const AxisSettings*>& li
         if (!done[k]) names += (names.empty() ? "'" : ", '") + list[k]->name + "'";
       return Error{ErrorCode::kTimeout, "axis " + names + " not " +
                                             (homing ? "homed" : "in position") + " after " +
-                                            std::to_string(timeout_s) + " s; stages stopped"};
+                                            Seconds(timeout_s) + "; stages stopped"};
     }
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    std::this_thread::sleep_for(PollInterval());
   }
+}
+
+Error ModbusStageController::Lost(const Error& e) {
+  // The link failed mid-move: try STOP anyway; if it cannot be sent either, say what that means.
+  if (StopAll().ok()) return Error{e.code, e.message + "; stages stopped"};
+  return Error{e.code, e.message +
+                           "; STOP could not be sent either, so the axes may still be "
+                           "moving (last known: " +
+                           LastKnown() + ")"};
 }
 
 Status ModbusStageController::MoveTo(const std::vector<std::pair<std::string, double>>& targets) {
@@ -319,6 +452,11 @@ Status ModbusStageController::MoveTo(const std::vector<std::pair<std::string, do
     const auto& g = phase == 0 ? first_goal : second_goal;
     if (axes.empty()) continue;
     for (std::size_t k = 0; k < axes.size(); ++k) {
+      // The controller ignores an operation written while READY is off.
+      if (Status s = WaitReady(*axes[k], "the move"); !s.ok()) {
+        (void)StopAll();
+        return s;
+      }
       if (Status s = StartMove(*axes[k], g[k]); !s.ok()) {
         (void)StopAll();
         return s;
@@ -352,7 +490,8 @@ Status ModbusStageController::Home(const std::vector<std::string>& names) {
   double timeout = 0;
   for (const AxisSettings* a : list) {
     timeout = std::max(timeout, a->home_timeout_s);
-    if (Status s = Write32(*a, p_.input_command, p_.in_home, "ZHOME"); !s.ok()) return s;
+    if (Status s = WaitReady(*a, "ZHOME"); !s.ok()) return s;
+    if (Status s = Command(*a, p_.input_command, p_.in_home, "ZHOME"); !s.ok()) return s;
   }
   return WaitAll(list, true, timeout, std::vector<double>(list.size(), 0.0));
 }

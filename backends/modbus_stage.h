@@ -8,7 +8,9 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -59,6 +61,21 @@ class ModbusStageController final : public StageController {
   Status WaitAll(const std::vector<const AxisSettings*>& list, bool homing, double timeout_s,
                  const std::vector<double>& targets_deg);
   std::string AlarmText(const AxisSettings& a, std::uint32_t code) const;
+  // Status bits and alarm (one request), and positions (commanded and feedback: one request when
+  // they lie within 8 registers of each other).
+  Result<AxisStatus> ReadBits(const AxisSettings& a);
+  Status ReadPositions(const AxisSettings& a, AxisStatus& s);
+  // Polls until the axis is READY (profile's ready_timeout_s); `before` names what waits.
+  Status WaitReady(const AxisSettings& a, const char* before);
+  // An input command (or the alarm reset) as the profile says the controller takes it.
+  Status Command(const AxisSettings& a, std::uint16_t address, std::uint32_t value,
+                 const std::string& what);
+  std::chrono::microseconds PollInterval() const;
+  std::string BitsText(const AxisStatus& s) const;
+  // What a status read saw last, per axis, for the message when the link is lost for good.
+  void Remember(const AxisSettings& a, const AxisStatus& s, bool positions);
+  std::string LastKnown();
+  Error Lost(const Error& e);  // a link failure mid-move: STOP tried, the message completed
 
   ModbusLink link_;
   std::vector<AxisSettings> axes_;
@@ -67,6 +84,7 @@ class ModbusStageController final : public StageController {
   void* ctx_ = nullptr;  // modbus_t*
   int retried_ = 0;
   std::atomic<int> reconnects_{0};  // read by the engine's readout thread (Reconnections)
+  std::map<std::string, AxisStatus> last_known_;  // under mu_
 };
 
 }  // namespace gonio::backends

@@ -22,9 +22,7 @@ Status ReadFeatures(Reader& r, const toml::table& k, devices::VendorFeatures& f)
        "shutter_closed", "status_selector", "status_selector_value", "status"}));
   GONIO_TRY(r.String(k, "temperature_selector", &f.temperature_selector));
   GONIO_TRY(r.String(k, "temperature_selector_value", &f.temperature_selector_value));
-  GONIO_TRY(r.String(k, "temperature", &f.temperature));
-  if (f.temperature.empty())
-    return r.Fail(k.get("temperature"), "'temperature' must name the camera's temperature feature");
+  GONIO_TRY(r.String(k, "temperature", &f.temperature));  // empty: the camera has no sensor
   GONIO_TRY(r.String(k, "control_mode", &f.control_mode));
   GONIO_TRY(r.String(k, "control_on", &f.control_on));
   GONIO_TRY(r.String(k, "control_off", &f.control_off));
@@ -47,7 +45,7 @@ Status ReadCamera(Reader& r, const toml::table& t, InstrumentConfig& c) {
        "frame_timeout_s", "retries", "linear_limit_adu", "status_poll_s", "features"}));
   devices::CameraSettings& s = c.camera;
   GONIO_TRY(r.Bool(t, "enabled", &c.camera_enabled));
-  GONIO_TRY(r.String(t, "address", &s.address));
+  GONIO_TRY(r.Ipv4(t, "address", &s.address));
   GONIO_TRY(r.String(t, "pixel_format", &s.pixel_format, {"Mono12", "Mono16"}));
   GONIO_TRY(r.Number(t, "gain_db", &s.gain_db, 0, 48));
   GONIO_TRY(r.Integer(t, "black_level", &s.black_level, -1, 65535));
@@ -74,16 +72,20 @@ Status ReadCamera(Reader& r, const toml::table& t, InstrumentConfig& c) {
 
 // [stages.registers]: where the controller keeps what the driver uses.
 Status ReadRegisters(Reader& r, const toml::table& g, devices::StageRegisterProfile& p) {
-  GONIO_TRY(r.Keys(
-      g, "stages.registers",
-      {"direct_data", "operation_absolute", "current", "input_command", "output_status",
-       "present_alarm", "command_position", "alarm_reset", "in_home_bit", "in_stop_bit",
-       "out_home_end_bit", "out_ready_bit", "out_alarm_bit", "out_move_bit", "out_in_pos_bit"}));
+  GONIO_TRY(
+      r.Keys(g, "stages.registers",
+             {"direct_data", "operation_absolute", "current", "input_command", "output_status",
+              "present_alarm", "command_position", "feedback_position", "alarm_reset",
+              "in_home_bit", "in_stop_bit", "out_home_end_bit", "out_ready_bit", "out_alarm_bit",
+              "out_move_bit", "out_in_pos_bit", "inputs_latched", "ready_timeout_s"}));
   GONIO_TRY(r.Integer(g, "direct_data", &p.direct_data, 0, 0xFFFF));
   GONIO_TRY(r.Integer(g, "input_command", &p.input_command, 0, 0xFFFF));
   GONIO_TRY(r.Integer(g, "output_status", &p.output_status, 0, 0xFFFF));
   GONIO_TRY(r.Integer(g, "present_alarm", &p.present_alarm, 0, 0xFFFF));
   GONIO_TRY(r.Integer(g, "command_position", &p.command_position, 0, 0xFFFF));
+  GONIO_TRY(r.Integer(g, "feedback_position", &p.feedback_position, 0, 0xFFFF));
+  GONIO_TRY(r.Bool(g, "inputs_latched", &p.inputs_latched));
+  GONIO_TRY(r.Number(g, "ready_timeout_s", &p.ready_timeout_s, 0.01, 60));
   GONIO_TRY(r.Integer(g, "alarm_reset", &p.alarm_reset, 0, 0xFFFF));
   GONIO_TRY(r.Integer(g, "operation_absolute", &p.operation_absolute, 0, 0xFFFF));
   GONIO_TRY(r.Integer(g, "current", &p.current, 0, 1000));
@@ -141,10 +143,10 @@ Status ReadAxes(Reader& r, const toml::node& n, std::vector<devices::AxisSetting
 Status ReadStages(Reader& r, const toml::table& t, InstrumentConfig& c) {
   GONIO_TRY(r.Keys(t, "stages",
                    {"link", "host", "port", "device", "baud", "parity", "data_bits", "stop_bits",
-                    "response_timeout_s", "retries", "registers", "axis"}));
+                    "response_timeout_s", "retries", "poll_interval_s", "registers", "axis"}));
   devices::ModbusLink& l = c.stage_link;
   GONIO_TRY(r.String(t, "link", &l.kind, {"rtu", "tcp"}));
-  GONIO_TRY(r.String(t, "host", &l.host));
+  GONIO_TRY(r.Ipv4(t, "host", &l.host));
   GONIO_TRY(r.Integer(t, "port", &l.port, 1, 65535));
   GONIO_TRY(r.String(t, "device", &l.device));
   if (l.kind == "rtu" && l.device.empty())
@@ -157,6 +159,7 @@ Status ReadStages(Reader& r, const toml::table& t, InstrumentConfig& c) {
   GONIO_TRY(r.Integer(t, "stop_bits", &l.stop_bits, 1, 2));
   GONIO_TRY(r.Number(t, "response_timeout_s", &l.response_timeout_s, 0.01, 30));
   GONIO_TRY(r.Integer(t, "retries", &l.retries, 0, 20));
+  GONIO_TRY(r.Number(t, "poll_interval_s", &l.poll_interval_s, 0, 1));
   if (const toml::table* g = t["registers"].as_table())
     GONIO_TRY(ReadRegisters(r, *g, c.registers));
   if (const toml::node* n = t.get("axis")) GONIO_TRY(ReadAxes(r, *n, c.axes));
@@ -174,7 +177,7 @@ Status ReadMonitor(Reader& r, const toml::table& t, MonitorConfig& m) {
   GONIO_TRY(r.Integer(t, "vendor_id", &m.usb.vendor_id, 0, 0xFFFF));
   GONIO_TRY(r.Integer(t, "product_id", &m.usb.product_id, 0, 0xFFFF));
   GONIO_TRY(r.String(t, "serial", &m.usb.serial));
-  GONIO_TRY(r.String(t, "host", &m.host));
+  GONIO_TRY(r.Ipv4(t, "host", &m.host));
   GONIO_TRY(r.Integer(t, "port", &m.port, 1, 65535));
   GONIO_TRY(r.Number(t, "wavelength_nm", &m.wavelength_nm, 200, 2000));
   GONIO_TRY(r.Integer(t, "averaging", &m.averaging, 1, 100000));

@@ -3,6 +3,9 @@
 // so unknown keys, wrong types and out-of-range values are refused the same way everywhere.
 #pragma once
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+
 #include <toml++/toml.h>
 
 #include <cstdint>
@@ -93,6 +96,23 @@ class Reader {
       return Fail(n, std::string("'") + key + "' = \"" + *v + "\" is not one of: " + list);
     }
     *out = *v;
+    return OkStatus();
+  }
+
+  // A numeric IPv4 address ("192.168.1.20"). Names are refused, not resolved: nothing in the
+  // instrument resolves names (libmodbus turns a name into 255.255.255.255, a broadcast), and the
+  // broadcast and unspecified addresses are refused too.
+  Status Ipv4(const toml::table& t, const char* key, std::string* out) {
+    if (Status s = String(t, key, out); !s.ok() || t.get(key) == nullptr) return s;
+    in_addr a{};
+    const bool numeric = ::inet_pton(AF_INET, out->c_str(), &a) == 1;
+    if (!numeric || a.s_addr == INADDR_BROADCAST || a.s_addr == INADDR_ANY)
+      return Fail(t.get(key), std::string("'") + key + "' = \"" + *out +
+                                  "\" must be a numeric IPv4 address of the device, such as "
+                                  "192.168.1.20" +
+                                  (numeric ? " (not a broadcast or 0.0.0.0)"
+                                           : " (names are not resolved: a name could be turned "
+                                             "into a broadcast address)"));
     return OkStatus();
   }
 

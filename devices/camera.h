@@ -19,7 +19,7 @@ namespace gonio::devices {
 struct VendorFeatures {
   std::string temperature_selector = "DeviceTemperatureSelector";  // empty: none
   std::string temperature_selector_value = "Sensor";
-  std::string temperature = "DeviceTemperature";
+  std::string temperature = "DeviceTemperature";              // float; empty: no sensor
   std::string control_mode = "SensorTemperatureControlMode";  // enum; empty: no cooler
   std::string control_on = "On", control_off = "Off";
   std::string setpoint = "SensorTemperatureSetpointValue";
@@ -74,9 +74,33 @@ struct TemperatureWait {
   const std::atomic<bool>* cancel = nullptr;
 };
 
+// What a camera has besides frames. Each is optional: a camera without one is still a camera
+// (info, snap), and what needs it says so (kFailedPrecondition naming the missing part).
+struct CameraCapabilities {
+  bool temperature = true;   // a sensor temperature to read (runs record it; the suspender)
+  bool cooler = true;        // a cooler with a setpoint (cooling waits)
+  bool shutter = true;       // a shutter to close for dark frames
+  bool exposure_end = true;  // says when the sensor stops integrating (ReportsExposureEnd)
+  // One line for logs: what is missing and what that turns off ("" when nothing is).
+  std::string Missing() const {
+    std::string m;
+    auto add = [&](bool has, const char* what) {
+      if (!has) m += (m.empty() ? "" : "; ") + std::string(what);
+    };
+    add(temperature,
+        "no temperature sensor: the temperature suspender is off and runs are refused");
+    add(cooler, "no cooler: cooling waits are off");
+    add(shutter, "no shutter: dark frames cannot be taken, so runs are refused");
+    add(exposure_end, "no exposure-end status: each frame is read out before the stages move");
+    return m;
+  }
+};
+
 class Camera {
  public:
   virtual ~Camera() = default;
+  // Fixed once the camera is open (its node map and the config's feature names).
+  virtual CameraCapabilities Capabilities() const { return {}; }
   virtual std::string Identity() const = 0;  // "vendor model serial"
   virtual Status SetExposure(double seconds) = 0;
   virtual Result<double> Exposure() = 0;
@@ -97,9 +121,11 @@ class Camera {
   virtual bool ReportsExposureEnd() const = 0;
   virtual Status Expose() = 0;
   virtual Result<Frame> Retrieve() = 0;
+  // kFailedPrecondition without a temperature sensor (Capabilities).
   virtual Result<double> TemperatureC() = 0;
-  // Closes (dark frames) or opens the shutter. kInvalidArgument when the config names none.
+  // Closes (dark frames) or opens the shutter. kFailedPrecondition without one.
   virtual Status SetShutter(bool open) = 0;
+  // kFailedPrecondition without a cooler (SetCooling and CoolAndWait).
   virtual Status SetCooling(bool on, double setpoint_c) = 0;
   // Turns the cooler on toward w.setpoint_c (ramped if asked) and waits until the sensor stays
   // within tolerance for hold_s. Errors: kTimeout naming the temperature reached; kAborted when

@@ -43,11 +43,20 @@ struct StageRegisterProfile {
   std::uint16_t input_command = 0x007C;
   std::uint16_t output_status = 0x007E;
   std::uint16_t present_alarm = 0x0080;
-  std::uint16_t command_position = 0x00C6;
+  std::uint16_t command_position = 0x00C6;   // where the controller commands the motor
+  std::uint16_t feedback_position = 0x00CC;  // where the encoder says it is: moves verify this
   std::uint16_t alarm_reset = 0x0180;
   std::uint32_t in_home = 1u << 4, in_stop = 1u << 5;
   std::uint32_t out_home_end = 1u << 4, out_ready = 1u << 5, out_alarm = 1u << 7,
                 out_move = 1u << 13, out_in_pos = 1u << 14;
+  // Whether the controller keeps input commands (and the alarm reset) as written, acting on each
+  // bit's off-to-on edge (the AZ family), rather than taking each write as a pulse. Latched: the
+  // driver writes each command as an edge and clears it again (a STOP left on blocks every
+  // later move; a ZHOME left on makes the next homing no edge). Harmless on a pulsing one.
+  bool inputs_latched = true;
+  // How long the driver waits for READY before an operation or a homing: the controller ignores
+  // one written while READY is off (during a move, shortly after a move, a stop or a reset).
+  double ready_timeout_s = 2.0;
 };
 
 struct ModbusLink {
@@ -61,10 +70,15 @@ struct ModbusLink {
   int data_bits = 8, stop_bits = 1;
   double response_timeout_s = 0.5;
   int retries = 3;  // per request, for timeouts, CRC errors and dropped connections
+  // The least time between two status polls of a moving axis (each poll is one request per
+  // axis); 0: 5 ms over TCP, 20 ms over RTU (three units on a 115200-baud line stay below half
+  // its capacity).
+  double poll_interval_s = 0;
 };
 
 struct AxisStatus {
-  double position_deg = 0;
+  double position_deg = 0;   // the feedback (encoder) position
+  double commanded_deg = 0;  // where the controller commands it
   bool ready = false, moving = false, in_position = false, homed = false;
   std::uint32_t alarm = 0;  // 0: none
 };

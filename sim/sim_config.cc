@@ -40,6 +40,9 @@ SimConfig TwoAxisConfig(double clock_speed) {
   AxisConfig arm{.role = "arm", .steps_per_degree = 1000, .degrees_at_zero = 180, .options = {}};
   arm.options.min_steps = -180'000;  // 0 deg
   arm.options.max_steps = 180'000;   // 360 deg
+  // The real controller's handshakes (docs/stage_register_map.md): latched inputs, READY late.
+  for (AxisConfig* a : {&sample, &arm})
+    a->options.latched_inputs = true, a->options.ready_delay_s = 0.05;
   c.axes = {sample, arm};
   return c;
 }
@@ -51,10 +54,10 @@ Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::str
   const toml::table* a = item.as_table();
   if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
   AxisConfig ax;
-  GONIO_TRY(
-      r.Keys(*a, "stages.axis",
-             {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps", "settle_s",
-              "limit_switches", "limit_min_steps", "limit_max_steps", "backlash_steps"}));
+  GONIO_TRY(r.Keys(*a, "stages.axis",
+                   {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps",
+                    "settle_s", "limit_switches", "limit_min_steps", "limit_max_steps",
+                    "backlash_steps", "latched_inputs", "ready_delay_s", "stall_alarm"}));
   if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
   GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth"}));
   if (!roles.insert(ax.role).second) {
@@ -73,6 +76,9 @@ Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::str
   if (ax.options.limit_min_steps >= ax.options.limit_max_steps)
     return r.Fail(a, "limit_min_steps must be below limit_max_steps");
   GONIO_TRY(r.Number(*a, "backlash_steps", &ax.options.backlash_steps, 0, 1e6));
+  GONIO_TRY(r.Bool(*a, "latched_inputs", &ax.options.latched_inputs));
+  GONIO_TRY(r.Number(*a, "ready_delay_s", &ax.options.ready_delay_s, 0, 10));
+  GONIO_TRY(r.Bool(*a, "stall_alarm", &ax.options.stall_alarm));
   return ax;
 }
 
@@ -150,7 +156,7 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
                      {"enabled", "address", "serial", "sensor_width", "sensor_height",
                       "mm_per_pixel", "genicam"}));
     GONIO_TRY(r.Bool(*t, "enabled", &c.camera_enabled));
-    GONIO_TRY(r.String(*t, "address", &c.camera.address));
+    GONIO_TRY(r.Ipv4(*t, "address", &c.camera.address));
     if (c.camera.address.rfind("127.", 0) != 0) {
       return r.Fail(t->get("address"), "camera address must be a loopback address (127.x.x.x)");
     }

@@ -75,6 +75,12 @@ Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,
   if (!size.ok()) return size.error();
   in.context.image_width = size->width;
   in.context.image_height = size->height;
+  const devices::CameraCapabilities caps = in.camera->Capabilities();
+  if (!caps.temperature || !caps.shutter)
+    in.context.camera_missing = !caps.temperature && !caps.shutter
+                                    ? "no temperature sensor and no shutter"
+                                : !caps.temperature ? "no temperature sensor"
+                                                    : "no shutter for dark frames";
   auto stages = OpenStages(c);
   if (!stages.ok()) return stages.error();
   in.stages = std::move(stages).value();

@@ -161,6 +161,11 @@ Status Controller::Start(std::optional<bool> resume_interrupted) {
   std::unique_lock lock(mu_);
   if (started_) return NotNow("the controller is already started");
   if (Status st = LoadJobs(resume_interrupted); !st.ok()) return st;
+  // What the camera lacks is said once, here, as a capability; the suspender that needs the
+  // sensor's temperature is off without one.
+  const devices::CameraCapabilities caps = camera_.Capabilities();
+  if (!caps.Missing().empty()) events_.Publish("log", {{"message", "camera: " + caps.Missing()}});
+  if (!caps.temperature) o_.suspenders.temperature_setpoint_c.reset();
   started_ = true;
   worker_ = std::thread([this] { Worker(); });
   return OkStatus();
@@ -673,6 +678,7 @@ void Controller::OnPoint(const Progress& p) {
 }
 
 Status Controller::CoolDown(const CoolerWait& w) {
+  if (!camera_.Capabilities().cooler) return OkStatus();  // said once at Start; nothing to wait for
   devices::TemperatureWait t;
   t.setpoint_c = w.setpoint_c;
   t.tolerance_c = w.tolerance_c;

@@ -49,13 +49,23 @@ int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action
   auto cam = daemon::OpenCamera(cfg);
   if (!cam.ok()) return Fail(cam.error());
   devices::Camera& c = **cam;
+  const devices::CameraCapabilities caps = c.Capabilities();
   if (action == "info") {
-    auto t = c.TemperatureC();
     auto e = c.Exposure();
-    std::cout << "camera: " << c.Identity() << "\n";
-    if (e.ok()) std::cout << "exposure: " << *e << " s\n";
-    if (t.ok()) std::cout << "sensor temperature: " << *t << " C\n";
-    return t.ok() ? 0 : Fail(t.error());
+    if (!e.ok()) return Fail(e.error());
+    std::cout << "camera: " << c.Identity() << "\n"
+              << "exposure: " << *e << " s\n";
+    if (caps.temperature) {
+      auto t = c.TemperatureC();
+      if (!t.ok()) return Fail(t.error());
+      std::cout << "sensor temperature: " << *t << " C\n";
+    }
+    // What the camera lacks is a capability, not an error.
+    std::cout << "has: temperature " << (caps.temperature ? "yes" : "no") << ", cooler "
+              << (caps.cooler ? "yes" : "no") << ", shutter " << (caps.shutter ? "yes" : "no")
+              << ", exposure-end status " << (caps.exposure_end ? "yes" : "no") << "\n";
+    if (!caps.Missing().empty()) std::cout << "note: " << caps.Missing() << "\n";
+    return 0;
   }
   if (action == "snap") {
     if (Status s = c.SetExposure(exposure); !s.ok()) return Fail(s.error());
@@ -83,6 +93,10 @@ int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action
     return 0;
   }
   if (action == "cool") {
+    if (!caps.cooler) {
+      std::cout << "this camera has no cooler: nothing to cool\n";
+      return 0;
+    }
     if (off) {
       Status s = c.SetCooling(false, 20);
       return s.ok() ? 0 : Fail(s.error());
@@ -96,7 +110,7 @@ int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action
               << " s)..." << std::endl;
     Status s = c.CoolAndWait(w);
     if (!s.ok()) return Fail(s.error());
-    std::cout << "stable at " << *c.TemperatureC() << " C\n";
+    if (auto t = c.TemperatureC(); t.ok()) std::cout << "stable at " << *t << " C\n";
     return 0;
   }
   return Fail(InvalidArgument("unknown camera action '" + action + "'"));

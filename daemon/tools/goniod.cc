@@ -72,7 +72,8 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_option("--samples", samples_path, "specimen catalogue")->check(CLI::ExistingFile);
   app.add_option("--db", db_path, "SQLite database (created if missing)")->required();
-  app.add_option("--listen", host, "API address (loopback unless you mean otherwise)")
+  app.add_option("--listen", host, "API address, numeric IPv4 (loopback unless you mean otherwise)")
+      ->check(CLI::ValidIPV4)
       ->capture_default_str();
   app.add_option("--port", port, "API port (0: any free port)")->capture_default_str();
   app.add_option("--port-file", port_file, "write the bound port here once listening");

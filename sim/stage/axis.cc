@@ -19,7 +19,24 @@ SimulatedAxis::SimulatedAxis(const Clock& clock, AxisOptions options, std::strin
 
 double SimulatedAxis::MotorAt(double t) const {
   if (hard_stop_ && t >= hard_stop_->time) return hard_stop_->position;
+  if (silent_stall_ && t >= silent_stall_->time) return silent_stall_->position;
   return move_.PositionAt(t);
+}
+
+double SimulatedAxis::CommandAt(double t) const {
+  if (hard_stop_ && t >= hard_stop_->time) return hard_stop_->position;
+  return move_.PositionAt(t);
+}
+
+bool SimulatedAxis::ReadyAt(double t) const {
+  if (alarm_ || MovingAt(t) || t < not_ready_until_) return false;
+  if (o_.latched_inputs && (inputs_ & kInStop)) return false;  // STOP held on
+  return t >= move_.EndTime() + o_.ready_delay_s;              // settled after the last profile
+}
+
+int SimulatedAxis::IgnoredOperations() const {
+  std::lock_guard lock(mu_);
+  return ignored_;
 }
 
 bool SimulatedAxis::MovingAt(double t) const {
@@ -66,17 +83,25 @@ void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, in
   Refresh();  // a hard stop that is due becomes an alarm before the write acts
   for (int k = 0; k < count; ++k) regs_[address + k] = values[k];
   auto touched = [&](std::uint16_t reg) { return address <= reg + 1 && reg < address + count; };
-  if (touched(kAlarmReset) && Get32(kAlarmReset) == 1) {
-    alarm_ = 0;
-    Set32(kAlarmReset, 0);
+  const double now = clock_.Now();
+  if (touched(kAlarmReset)) {
+    const std::uint32_t v = Get32(kAlarmReset);
+    // Latched: the reset acts on 0 -> 1 and the register keeps what was written.
+    if (v == 1 && (!o_.latched_inputs || !alarm_reset_held_)) ResetAlarm(now);
+    alarm_reset_held_ = v == 1;
+    if (!o_.latched_inputs) Set32(kAlarmReset, 0);
   }
   if (touched(kInputCommand)) {
     const std::uint32_t in = Get32(kInputCommand);
-    if (in & kInAlarmReset) alarm_ = 0;
-    if (in & kInStop) Stop();
-    if (in & kInHome) Home();
-    if (in & kInStart) StartDirectData();
-    Set32(kInputCommand, 0);  // commands act on the write (edge), as pulses
+    // Pulsed: every bit written acts. Latched: only bits that went from off to on act, and the
+    // register keeps its value (a STOP left on blocks operations until cleared).
+    const std::uint32_t act = o_.latched_inputs ? in & ~inputs_ : in;
+    inputs_ = o_.latched_inputs ? in : 0;
+    if (act & kInAlarmReset) ResetAlarm(now);
+    if (act & kInStop) Stop();
+    if (act & kInHome) Home();
+    if (act & kInStart) StartDirectData();
+    if (!o_.latched_inputs) Set32(kInputCommand, 0);
   }
   if (touched(kTrigger) && Get32(kTrigger) == 1) {
     StartDirectData();
@@ -87,8 +112,15 @@ void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, in
 
 void SimulatedAxis::NewMove(double now, const TrapezoidalMove& move) {
   load_anchor_ = LoadAt(now);
-  move_ = move;
+  move_ = move;  // built from where the motor is (MotorAt), a silent stall included
   hard_stop_.reset();
+  silent_stall_.reset();
+}
+
+void SimulatedAxis::ResetAlarm(double now) {
+  if (alarm_ == 0) return;
+  alarm_ = 0;
+  not_ready_until_ = now + o_.ready_delay_s;
 }
 
 void SimulatedAxis::Alarm(std::uint32_t code) {
@@ -105,7 +137,10 @@ void SimulatedAxis::Stop() {
 
 void SimulatedAxis::Home() {
   const double now = clock_.Now();
-  if (alarm_ || MovingAt(now)) return;  // not READY: ignored, as the real driver does
+  if (!ReadyAt(now)) {  // not READY: ignored, as the real driver does
+    ++ignored_;
+    return;
+  }
   NewMove(now, TrapezoidalMove(now, MotorAt(now), 0, o_.home_speed, o_.home_acceleration,
                                o_.home_acceleration));
   homing_ = true;
@@ -113,7 +148,10 @@ void SimulatedAxis::Home() {
 
 void SimulatedAxis::StartDirectData() {
   const double now = clock_.Now();
-  if (alarm_ || MovingAt(now)) return;  // not READY: ignored
+  if (!ReadyAt(now)) {  // not READY: ignored
+    ++ignored_;
+    return;
+  }
   const double here = MotorAt(now);
   const std::uint32_t type = Get32(kOperationType);
   const auto pos = static_cast<std::int32_t>(Get32(kPosition));
@@ -139,7 +177,9 @@ void SimulatedAxis::StartDirectData() {
   // notices the position deviation then (AZ alarm 0x10).
   if (MaybeFire(faults_, FaultKind::kAxisStall, name_, now) && target != here) {
     const double t = now + 0.5 * (move.EndTime() - now);
-    if (!hard_stop_ || t < hard_stop_->time)
+    if (!o_.stall_alarm)
+      silent_stall_ = HardStop{t, move.PositionAt(t), 0};
+    else if (!hard_stop_ || t < hard_stop_->time)
       hard_stop_ = HardStop{t, move.PositionAt(t), kAlarmPositionDeviation};
   }
 }
@@ -162,10 +202,10 @@ void SimulatedAxis::Refresh() {
     homing_ = false;
     homed_ = true;
   }
-  const double pos = MotorAt(now);
+  const double pos = MotorAt(now), commanded = CommandAt(now);
   std::uint32_t out = 0;
-  if (homed_ && !moving && std::abs(pos) < 0.5) out |= kOutHomeEnd;
-  if (!alarm_ && !moving) out |= kOutReady;
+  if (homed_ && !moving && std::abs(commanded) < 0.5) out |= kOutHomeEnd;
+  if (ReadyAt(now)) out |= kOutReady;
   if (alarm_) out |= kOutAlarm;
   if (moving) out |= kOutBusy | kOutMove;
   if (settled && !alarm_) out |= kOutInPos;
@@ -173,7 +213,9 @@ void SimulatedAxis::Refresh() {
   if (o_.limit_switches && pos <= o_.limit_min_steps) out |= kOutLimitMinus;
   Set32(kOutputStatus, out);
   Set32(kPresentAlarm, alarm_);
-  Set32(kCommandPosition, static_cast<std::uint32_t>(static_cast<std::int32_t>(std::lround(pos))));
+  Set32(kCommandPosition,
+        static_cast<std::uint32_t>(static_cast<std::int32_t>(std::lround(commanded))));
+  Set32(kFeedbackPosition, static_cast<std::uint32_t>(static_cast<std::int32_t>(std::lround(pos))));
 }
 
 }  // namespace gonio::sim

@@ -20,21 +20,22 @@ namespace gonio::sim {
 
 // Register addresses (holding registers; 32-bit values are two registers, upper word first).
 namespace stage_reg {
-inline constexpr std::uint16_t kDirectData = 0x0058;       // 16 registers, see below
-inline constexpr std::uint16_t kDataNumber = 0x0058;       // 32-bit, unused by the simulator
-inline constexpr std::uint16_t kOperationType = 0x005A;    // 32-bit: 1 absolute, 2 incremental
-inline constexpr std::uint16_t kPosition = 0x005C;         // 32-bit signed, steps
-inline constexpr std::uint16_t kSpeed = 0x005E;            // 32-bit, steps/s
-inline constexpr std::uint16_t kAcceleration = 0x0060;     // 32-bit, steps/s^2
-inline constexpr std::uint16_t kDeceleration = 0x0062;     // 32-bit, steps/s^2
-inline constexpr std::uint16_t kCurrent = 0x0064;          // 32-bit, 0.1 %; stored, not modelled
-inline constexpr std::uint16_t kTrigger = 0x0066;          // 32-bit: 1 = start with all data
-inline constexpr std::uint16_t kInputCommand = 0x007C;     // 32-bit bit field, see kIn*
-inline constexpr std::uint16_t kOutputStatus = 0x007E;     // 32-bit bit field, see kOut*
-inline constexpr std::uint16_t kPresentAlarm = 0x0080;     // 32-bit alarm code, 0 = none
-inline constexpr std::uint16_t kCommandPosition = 0x00C6;  // 32-bit signed, steps
-inline constexpr std::uint16_t kAlarmReset = 0x0180;       // 32-bit: write 1 to reset the alarm
-inline constexpr std::uint16_t kCount = 0x0200;            // registers 0x0000..0x01FF exist
+inline constexpr std::uint16_t kDirectData = 0x0058;        // 16 registers, see below
+inline constexpr std::uint16_t kDataNumber = 0x0058;        // 32-bit, unused by the simulator
+inline constexpr std::uint16_t kOperationType = 0x005A;     // 32-bit: 1 absolute, 2 incremental
+inline constexpr std::uint16_t kPosition = 0x005C;          // 32-bit signed, steps
+inline constexpr std::uint16_t kSpeed = 0x005E;             // 32-bit, steps/s
+inline constexpr std::uint16_t kAcceleration = 0x0060;      // 32-bit, steps/s^2
+inline constexpr std::uint16_t kDeceleration = 0x0062;      // 32-bit, steps/s^2
+inline constexpr std::uint16_t kCurrent = 0x0064;           // 32-bit, 0.1 %; stored, not modelled
+inline constexpr std::uint16_t kTrigger = 0x0066;           // 32-bit: 1 = start with all data
+inline constexpr std::uint16_t kInputCommand = 0x007C;      // 32-bit bit field, see kIn*
+inline constexpr std::uint16_t kOutputStatus = 0x007E;      // 32-bit bit field, see kOut*
+inline constexpr std::uint16_t kPresentAlarm = 0x0080;      // 32-bit alarm code, 0 = none
+inline constexpr std::uint16_t kCommandPosition = 0x00C6;   // 32-bit signed, steps: commanded
+inline constexpr std::uint16_t kFeedbackPosition = 0x00CC;  // 32-bit signed, steps: the encoder
+inline constexpr std::uint16_t kAlarmReset = 0x0180;        // 32-bit: write 1 to reset the alarm
+inline constexpr std::uint16_t kCount = 0x0200;             // registers 0x0000..0x01FF exist
 
 // Input command bits (kInputCommand, lower word).
 inline constexpr std::uint32_t kInStart = 1u << 3;  // start with the stored direct data
@@ -75,6 +76,18 @@ struct AxisOptions {
   // a reversal. The encoder (0x00C6) reads the motor; the camera sees the load. A driver that
   // always approaches from the same side sees a constant offset instead of a hysteresis.
   double backlash_steps = 0;
+  // How the real AZ driver differs from a forgiving one (docs/stage_register_map.md, "Handshakes"):
+  // Input commands latched: the input-command register keeps what was written, a command acts on
+  // its bit's off-to-on edge, and a STOP left on blocks every operation until it is cleared.
+  // Otherwise each write acts as a pulse and the register reads 0 again.
+  bool latched_inputs = false;
+  // READY stays off this long after a motion ends (a move, a stop, a homing) and after an alarm
+  // reset; an operation or ZHOME written meanwhile is ignored.
+  double ready_delay_s = 0;
+  // A stall (the fault plan's axis_stall) raises alarm 0x10 (true), or goes unnoticed by the
+  // driver (false: a deviation under the alarm threshold): the commanded position still reaches
+  // the target and IN-POS comes, while the encoder (feedback position) stays where it stalled.
+  bool stall_alarm = true;
 };
 
 // Thread-safe: the protocol server's thread writes and reads registers while the camera's
@@ -103,6 +116,8 @@ class SimulatedAxis {
   double PositionSteps() const;
   // Where the motor is (what the encoder reads).
   double MotorSteps() const;
+  // How many operations and ZHOMEs were ignored for want of READY (or for a STOP held on).
+  int IgnoredOperations() const;
   const std::string& name() const { return name_; }
 
  private:
@@ -123,7 +138,10 @@ class SimulatedAxis {
   // Where the motor is at t, and whether it moves, with a pending hard stop (a limit switch or a
   // stall) in effect from its time on; the load behind its backlash.
   double MotorAt(double t) const;
+  double CommandAt(double t) const;  // the commanded profile (a silent stall does not stop it)
   bool MovingAt(double t) const;
+  bool ReadyAt(double t) const;  // READY: accepts an operation
+  void ResetAlarm(double now);
   double LoadAt(double t) const;
 
   struct HardStop {
@@ -144,6 +162,13 @@ class SimulatedAxis {
   std::optional<HardStop> hard_stop_;
   std::uint32_t alarm_ = 0;
   bool homed_ = false, homing_ = false;
+  std::uint32_t inputs_ = 0;       // latched_inputs: the input command as last written
+  bool alarm_reset_held_ = false;  // latched_inputs: 0x0180 holds 1
+  double not_ready_until_ = -1;    // ready_delay_s after an alarm reset
+  int ignored_ = 0;
+  // A stall that the driver does not notice (stall_alarm false): the motor rests at `position`
+  // from `time` on while the commanded profile (move_) goes on.
+  std::optional<HardStop> silent_stall_;
 };
 
 }  // namespace gonio::sim

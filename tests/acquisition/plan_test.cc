@@ -63,6 +63,18 @@ TEST(Plan, BadPlansAreRefusedWithFileAndLine) {
       << no_rect.error().message;
 }
 
+// Issue #19: a camera without a temperature sensor or a shutter is a camera (info, snap), but a
+// run needs both (each point records the temperature; darks need the shutter): refused at once.
+TEST(Plan, ARunIsRefusedForACameraWithoutWhatARunNeeds) {
+  PlanContext c = Context();
+  c.camera_missing = "no shutter for dark frames";
+  auto p = LoadPlan(kData + "/plans/good.toml", c);
+  ASSERT_FALSE(p.ok());
+  EXPECT_NE(p.error().message.find("good.toml"), std::string::npos) << p.error().message;
+  EXPECT_NE(p.error().message.find("its camera has no shutter"), std::string::npos)
+      << p.error().message;
+}
+
 TEST(Plan, PointsRunASerpentineAndUnreachableOnesAreSkipped) {
   auto p = LoadPlan(kData + "/plans/good.toml", Context());
   ASSERT_TRUE(p.ok()) << p.error().message;

@@ -57,10 +57,22 @@ class StageDriver : public ::testing::Test {
     a.backlash_overshoot_deg = 0;
     return {s, a};
   }
-  std::unique_ptr<ModbusStageController> Open(double overshoot = 0) {
-    auto c = ModbusStageController::Open(link, Settings(overshoot));
+  std::unique_ptr<ModbusStageController> Open(double overshoot = 0,
+                                              devices::StageRegisterProfile profile = {}) {
+    auto c = ModbusStageController::Open(link, Settings(overshoot), profile);
     EXPECT_TRUE(c.ok()) << c.error().message;
     return c.ok() ? std::move(*c) : nullptr;
+  }
+  // Another client starts a move of the sample axis to `steps` (direct data operation, written
+  // at the register level from docs/stage_register_map.md: type 1, speed 20000, trigger 1).
+  void MoveElsewhere(std::int32_t steps) {
+    const std::uint32_t v[8] = {0,    1, static_cast<std::uint32_t>(steps), 20000, 100000, 100000,
+                                1000, 1};
+    std::uint16_t w[16];
+    for (int k = 0; k < 8; ++k)
+      w[2 * k] = static_cast<std::uint16_t>(v[k] >> 16),
+            w[2 * k + 1] = static_cast<std::uint16_t>(v[k] & 0xFFFF);
+    sample->Write(0x0058, w, 16);
   }
 
   sim::ScaledClock clock{50.0};
@@ -217,6 +229,125 @@ TEST_F(StageDriver, HomingReturnsEveryAxisToZero) {
   ASSERT_TRUE(c->Home().ok());
   EXPECT_TRUE(c->ReadStatus("sample")->homed);
   EXPECT_NEAR(c->ReadStatus("arm")->position_deg, 180, 1e-9);
+}
+
+// Issue #19: what a real AZ controller does and a forgiving simulator would not. The simulated
+// sample axis latches its inputs (commands act on an off-to-on edge and stay as written), keeps
+// READY off for a while after each motion and reset, or stalls without an alarm.
+sim::AxisOptions RealController() {
+  sim::AxisOptions o;
+  o.latched_inputs = true;
+  o.ready_delay_s = 0.5;  // simulated: 10 ms real at x50
+  return o;
+}
+
+TEST_F(StageDriver, AStopFollowedByAMoveWorksWhenInputsAreLatched) {
+  Serve(RealController());
+  auto c = Open();
+  ASSERT_TRUE(c);
+  ASSERT_TRUE(c->StopAll().ok());
+  ASSERT_TRUE(c->MoveTo({{"sample", 20}}).ok());
+  EXPECT_NEAR(sample->MotorSteps(), 20'000, 0.5);
+  EXPECT_EQ(sample->IgnoredOperations(), 0);
+  ASSERT_TRUE(c->StopAll().ok());
+  ASSERT_TRUE(c->MoveTo({{"sample", -5}, {"arm", 190}}).ok());
+  EXPECT_NEAR(sample->MotorSteps(), -5'000, 0.5);
+
+  // A driver that writes STOP and leaves it on: the held STOP blocks the next move, and the
+  // driver says so instead of waiting out the move's timeout.
+  devices::StageRegisterProfile pulsed;
+  pulsed.inputs_latched = false;
+  pulsed.ready_timeout_s = 0.2;
+  auto naive = Open(0, pulsed);
+  ASSERT_TRUE(naive);
+  ASSERT_TRUE(naive->StopAll().ok());
+  const Status s = naive->MoveTo({{"sample", 10}});
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("not READY"), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("STOP is held on"), std::string::npos) << s.error().message;
+}
+
+TEST_F(StageDriver, HomingTwiceWorksWhenInputsAreLatched) {
+  Serve(RealController());
+  auto c = Open();
+  ASSERT_TRUE(c);
+  for (const double deg : {3.0, -2.0}) {
+    ASSERT_TRUE(c->MoveTo({{"sample", deg}}).ok());
+    const Status homed = c->Home({"sample"});
+    ASSERT_TRUE(homed.ok()) << homed.error().message;
+    EXPECT_NEAR(sample->MotorSteps(), 0, 0.5) << "homing from " << deg << " deg";
+    EXPECT_TRUE(c->ReadStatus("sample")->homed);
+  }
+  EXPECT_EQ(sample->IgnoredOperations(), 0);
+}
+
+TEST_F(StageDriver, AMoveDuringAnotherClientsMoveWaitsForReady) {
+  Serve(RealController());
+  auto c = Open();
+  ASSERT_TRUE(c);
+  std::this_thread::sleep_for(std::chrono::milliseconds(30));  // READY after power-up
+  MoveElsewhere(30'000);                                       // 1.5 s simulated: 30 ms real
+  ASSERT_TRUE(sample->Moving());
+  const Status s = c->MoveTo({{"sample", 10}});
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_NEAR(sample->MotorSteps(), 10'000, 0.5);
+  EXPECT_EQ(sample->IgnoredOperations(), 0) << "a move was written while not READY";
+
+  // One that would not be READY in time is not written, and the error names the status bits.
+  devices::StageRegisterProfile impatient;
+  impatient.ready_timeout_s = 0.01;
+  auto hasty = Open(0, impatient);
+  ASSERT_TRUE(hasty);
+  std::this_thread::sleep_for(std::chrono::milliseconds(30));  // READY again
+  MoveElsewhere(-80'000);                                      // 4.5 s simulated
+  ASSERT_TRUE(sample->Moving());
+  const Status refused = hasty->MoveTo({{"sample", 40}});
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code, ErrorCode::kDeviceFault);
+  EXPECT_NE(refused.error().message.find("not READY"), std::string::npos)
+      << refused.error().message;
+  EXPECT_NE(refused.error().message.find("MOVE"), std::string::npos) << refused.error().message;
+  EXPECT_EQ(sample->IgnoredOperations(), 0);
+}
+
+TEST_F(StageDriver, AStallWithoutAnAlarmIsReportedAsAStall) {
+  sim::AxisOptions o = RealController();
+  o.stall_alarm = false;  // a deviation under the controller's alarm threshold
+  FaultEvent stalls = sim::OnOpportunity(FaultKind::kAxisStall, 1, "sample");
+  stalls.count = 2;  // the first two moves
+  Serve(o, {stalls});
+  auto c = Open();
+  ASSERT_TRUE(c);
+  const Status s = c->MoveTo({{"sample", 30}});
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, ErrorCode::kDeviceFault);
+  EXPECT_NE(s.error().message.find("stalled"), std::string::npos) << s.error().message;
+  EXPECT_NEAR(c->ReadStatus("sample")->position_deg, 15, 0.01);  // where it stalled
+
+  // Verified on the commanded position, the same stall passes for a move that arrived.
+  devices::StageRegisterProfile commanded;
+  commanded.feedback_position = commanded.command_position;
+  auto blind = Open(0, commanded);
+  ASSERT_TRUE(blind);
+  EXPECT_TRUE(blind->MoveTo({{"sample", -30}}).ok());
+  EXPECT_GT(sample->MotorSteps(), -20'000) << "the second stall did not happen";
+}
+
+TEST_F(StageDriver, ALinkLostForGoodMidMoveSaysTheAxesMayStillMove) {
+  Serve(RealController());
+  link.retries = 1;
+  auto c = Open();
+  ASSERT_TRUE(c);
+  std::thread cut([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(40));
+    tcp_server.reset();  // the gateway goes away while the arm moves (6 s simulated: 120 ms)
+  });
+  const Status s = c->MoveTo({{"arm", 300}});
+  cut.join();
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("may still be moving"), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("'arm' at"), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("and moving"), std::string::npos) << s.error().message;
 }
 
 TEST(StageDriverOpen, AnAbsentControllerIsNamedInTheError) {

@@ -12,9 +12,11 @@
 #                                                  -> api_latency.md
 #   sigterm_stop.sh  goniod's stop time on SIGTERM mid-run and with the instrument gone
 #                                                  -> sigterm_stop.md
+#   rtu_polling      stage polling on a 115200-baud RTU line: sweep time and line load per poll
+#                    interval                      -> rtu_polling.md
 #   measurement_tradeoff  fit time against alpha bias and coverage: point model, rectangle,
 #                    rectangle + apertures, on Figure 12's samples -> measurement_tradeoff.md
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|sweep|api|stop|soak ...]
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|sweep|api|stop|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20)
 #        (default: all but soak)
 set -euo pipefail
@@ -24,7 +26,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure sweep api stop)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure sweep api stop rtu)
 # Debian's matplotlib/scipy are installed for the system interpreter (docs/design.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -58,9 +60,11 @@ for part in "${parts[@]}"; do
       build-release/bench/api_latency 50 2 100 | tee out/bench/api_latency.md ;;
     stop)   # goniod SIGTERM'd 20 times mid-run and 5 times with gonio-sim gone; GigE port too
       bench/sigterm_stop.sh build-release 20 | tee out/bench/sigterm_stop.md ;;
+    rtu)    # three axes on a simulated 115200-baud RS-485 line, real time (about 40 s)
+      build-release/bench/rtu_polling 115200 10 | tee out/bench/rtu_polling.md ;;
     soak)   # not in the default set: 10,000 points, several minutes
       build-release/bench/acquisition_sweep soak 10000 100 | tee out/bench/acquisition_soak.md ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, measure, sweep, api, stop, soak)" >&2
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, measure, sweep, api, stop, rtu, soak)" >&2
        exit 2 ;;
   esac
 done

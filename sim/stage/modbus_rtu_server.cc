@@ -10,6 +10,8 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
+#include <cmath>
 #include <cstring>
 #include <vector>
 
@@ -153,6 +155,13 @@ void StageModbusRtuServer::Answer(const std::uint8_t* frame, int length) {
     have += static_cast<std::size_t>(r);
   }
   if (MaybeFire(faults_, FaultKind::kModbusCrc, axis.name(), now)) reply.back() ^= 0x5A;
+  ++requests_;
+  if (const int baud = baud_; baud > 0) {  // the line's time for request, reply and their gaps
+    const double chars = length + static_cast<double>(reply.size()) + 2 * 3.5;
+    const double busy = chars * 11.0 / baud;
+    line_busy_us_ += std::llround(busy * 1e6);
+    std::this_thread::sleep_for(std::chrono::duration<double>(busy));
+  }
   const std::uint8_t* p = reply.data();
   std::size_t left = reply.size();
   while (left > 0) {

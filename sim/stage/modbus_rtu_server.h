@@ -39,6 +39,15 @@ class StageModbusRtuServer {
   StageModbusRtuServer& operator=(const StageModbusRtuServer&) = delete;
 
   const std::string& pty_path() const { return pty_path_; }
+  // The line's speed: each request and its reply take the time their characters (11 bits each:
+  // start, 8 data, parity, stop) and the 3.5-character gaps after each would take on an RS-485
+  // line at `baud`, and nothing else is served meanwhile (a half-duplex bus). 0 (the default):
+  // a pty's speed. Set before the client starts.
+  void SetLineRate(int baud) { baud_ = baud; }
+  int requests() const { return requests_; }  // answered so far
+  double line_busy_s() const {
+    return line_busy_us_ * 1e-6;
+  }  // the line's time so far (SetLineRate)
 
  private:
   StageModbusRtuServer() = default;
@@ -54,6 +63,9 @@ class StageModbusRtuServer {
   int reply_[2] = {-1, -1};  // socketpair: libmodbus writes the reply, the loop forwards it
   std::string pty_path_, link_path_;
   std::atomic<bool> stop_{false};
+  std::atomic<int> baud_{0};
+  std::atomic<int> requests_{0};
+  std::atomic<long long> line_busy_us_{0};
   std::thread thread_;
 };
 

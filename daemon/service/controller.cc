@@ -450,6 +450,9 @@ void Controller::FinishCurrent(JobState end, const std::string& message) {
   finished_.push_back(*current_);
   current_.reset();
   progress_.reset();
+  // What suspended this job does not carry over to the next (an abort while suspended).
+  fault_logged_.clear();
+  suspended_since_ = 0;
 }
 
 void Controller::SafeState() {
@@ -598,7 +601,6 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
       fault_logged_ = fault;
     }
     if (why == StopReason::kAbort) {
-      fault_logged_.clear();
       FinishCurrent(JobState::kAborted, "aborted by the operator (after a device fault)");
       SetState(State::kIdle, "");
       return;

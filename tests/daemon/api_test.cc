@@ -746,6 +746,26 @@ TEST_F(DaemonDeviceOutage, AStageServerThatGoesAwayAndComesBackIsUsedAgain) {
   EXPECT_GT(inst.stages->Reconnections(), 0);
 }
 
+// An outage that the operator ends by aborting the run: the next job starts clean (no stale
+// "measuring again" in its log, no suspension time carried over).
+TEST_F(DaemonDeviceOutage, AnAbortDuringAnOutageLeavesNothingForTheNextJob) {
+  const auto first = SubmitPlan();
+  ASSERT_TRUE(WaitFor([&] { return Done() >= 2; }, 60));
+  inst.simulated->StopStageServer();
+  ASSERT_TRUE(WaitFor([&] { return State() == "suspended"; }, 30)) << State();
+  ASSERT_EQ(Post("/api/v1/abort", json::object()).first, 200);
+  ASSERT_TRUE(WaitFor([&] { return State() == "idle"; }, 10)) << State();
+  EXPECT_EQ(controller->GetJob(first)->state, JobState::kAborted);
+  ASSERT_TRUE(inst.simulated->StartStageServer().ok());
+  // The driver reconnects at its next request: here, not within the next run's first point
+  // (which would be a real fault of that point, measured again).
+  ASSERT_TRUE(inst.stages->ReadStatus("sample").ok());
+  const auto second = SubmitPlan();
+  const std::int64_t run = FinishedRun(second);
+  EXPECT_TRUE(Events(run, "suspend").empty());
+  EXPECT_TRUE(Events(run, "suspend_cleared").empty()) << Events(run, "suspend_cleared")[0];
+}
+
 // The source monitor leaves the bus for 900 simulated seconds (3 s real) at its 12th query,
 // mid-run (two frames a point: three queries each).
 class DaemonMonitorUnplugged : public DaemonDeviceOutage {

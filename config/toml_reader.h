@@ -106,7 +106,7 @@ class Reader {
     if (Status s = String(t, key, out); !s.ok() || t.get(key) == nullptr) return s;
     in_addr a{};
     const bool numeric = ::inet_pton(AF_INET, out->c_str(), &a) == 1;
-    if (!numeric || a.s_addr == INADDR_BROADCAST || a.s_addr == INADDR_ANY)
+    if (!numeric || a.s_addr == INADDR_BROADCAST || a.s_addr == 0)  // 0: 0.0.0.0
       return Fail(t.get(key), std::string("'") + key + "' = \"" + *out +
                                   "\" must be a numeric IPv4 address of the device, such as "
                                   "192.168.1.20" +

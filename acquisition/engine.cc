@@ -238,11 +238,15 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
 }
 
 Result<Measurement> Engine::Complete(Exposed& e) {
-  if (DeviceEpoch() != e.epoch) {
+  if (const auto now = DeviceEpoch(); now != e.epoch) {
     e.in_readout = false;  // not retaken: the whole point is measured again
+    const bool camera = now.first != e.epoch.first, stages = now.second != e.epoch.second;
     return Error{ErrorCode::kDeviceFault,
-                 "the camera or the stages were connected again while this point was measured "
-                 "(a device restarted?); it stays pending and is measured again"};
+                 std::string(camera && stages ? "the camera and the stages were"
+                             : camera         ? "the camera was"
+                                              : "the stages were") +
+                     " connected again while this point was measured (a device restarted?); it "
+                     "stays pending and is measured again"};
   }
   if (e.in_readout) {
     auto f = camera_.Retrieve();
@@ -364,7 +368,7 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     }
     Measurement m;
     m.index = p.index;
-    const int epoch = DeviceEpoch();
+    const auto epoch = DeviceEpoch();
     Status moved = MoveTo(p, &m);  // while the previous point's last frame reads out
     moved_back = false;
     if (Status s = settle(&moved_back); !s.ok()) return s;

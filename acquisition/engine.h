@@ -31,6 +31,7 @@
 #include <functional>
 #include <map>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include "acquisition/plan.h"
@@ -94,13 +95,16 @@ class Engine {
     Measurement m;  // geometry read back, exposure, ranging, flags, temperature
     RectAccumulator acc;
     const DarkRecord* dark = nullptr;
-    std::vector<double> monitor;  // W: before every frame and after the last
-    bool in_readout = false;      // the last frame is still to be retrieved
-    int epoch = 0;                // DeviceEpoch() before the point's move
+    std::vector<double> monitor;      // W: before every frame and after the last
+    bool in_readout = false;          // the last frame is still to be retrieved
+    std::pair<int, int> epoch{0, 0};  // DeviceEpoch() before the point's move
   };
-  // The devices' reconnections so far: a change during a point means a device went away and
-  // came back (a power cycle loses the stages' positions), so the point is measured again.
-  int DeviceEpoch() const { return camera_.Reconnections() + stages_.Reconnections(); }
+  // The camera's and the stages' reconnections so far: a change during a point means a device
+  // went away and came back (a power cycle loses the stages' positions), so the point is
+  // measured again.
+  std::pair<int, int> DeviceEpoch() const {
+    return {camera_.Reconnections(), stages_.Reconnections()};
+  }
 
   Status RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
                    const std::function<void(const Progress&)>& progress);

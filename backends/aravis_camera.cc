@@ -356,6 +356,7 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
       continue;
     }
     auto f = Wrap(b, attempt);
+    if (f.ok() && attempt > 1) f->retried_because = *last_problem;
     if (f.ok() || f.error().code != ErrorCode::kDeviceFault) return f;
     *last_problem = f.error().message;
   }
@@ -433,6 +434,7 @@ Result<Frame> AravisCamera::Snap() {
   if (silent) {
     if (Status s = Reopen(); !s.ok()) return s.error();
     f = SnapOnce(s_.retries + 2, &problem);
+    if (f.ok()) f->retried_because += " (every attempt; then reopened)";
   }
   if (f.ok() || f.error().code != ErrorCode::kTimeout) return f;
   const bool incomplete = problem.find("incomplete") != std::string::npos;

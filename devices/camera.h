@@ -60,6 +60,7 @@ struct Frame {
   double exposure_s = 0;
   std::uint64_t timestamp_ns = 0;  // the camera's
   int attempts = 1;                // 1 + the retries this frame needed
+  std::string retried_because;     // when attempts > 1: what the last failed attempt saw
   std::shared_ptr<void> hold;
 };
 

@@ -1,5 +1,7 @@
 #include "acquisition/engine.h"
 
+#include "acquisition/exposure.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -12,10 +14,6 @@ namespace {
 double UnixNow() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
-
-// Exposures on a ladder of 8 steps per decade (rounded down): neighbouring points share their
-// exposures, so the dark library serves them without a dark per point.
-double OnLadder(double t) { return std::pow(10.0, std::floor(8 * std::log10(t) + 1e-9) / 8); }
 
 bool HasAxis(const devices::StageController& s, const std::string& name) {
   for (const auto& a : s.axes())
@@ -118,12 +116,9 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
     const double range = limit - dark->mean;
     const double peak = probe.Max() - dark->mean;
     m.ranging_tries = tries;
-    const bool too_bright = probe.Max() >= dark->mean + x.saturation * range;
-    // Dim: below a quarter of the target (counts are cheap while exposures are short), or below
-    // the floor; at max_s there is nothing more to gain.
-    const bool too_dim = peak < std::max(x.floor, 0.25 * x.target) * range && t < x.max_s;
-    if (tries >= o_.max_ranging_tries || (!too_bright && !too_dim)) {
-      if (too_bright)
+    const ExposureJudgement j = JudgeExposure(x, t, peak, range);
+    if (tries >= o_.max_ranging_tries || (!j.too_bright && !j.too_dim)) {
+      if (j.too_bright)
         return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
                                                   " saturates even at " + std::to_string(t) +
                                                   " s (min_s " + std::to_string(x.min_s) + ")"};
@@ -131,15 +126,11 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
       first = std::move(f).value();
       break;
     }
-    const double goal = x.target * range / std::max(peak, 1.0);
-    // Saturated pixels hide how bright the peak is: cut hard. Otherwise scale to the target,
-    // at most x100 per step.
-    const double next = too_bright ? t * std::min(0.25, goal) : t * std::min(goal, 100.0);
-    if (too_bright && t <= x.min_s)
+    if (j.too_bright && t <= x.min_s)
       return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
                                                 " saturates at the shortest exposure " +
                                                 std::to_string(x.min_s) + " s"};
-    t = std::clamp(OnLadder(next), x.min_s, x.max_s);
+    t = j.next_s;
   }
   last_exposure_s_ = t;
   m.exposure_s = t;
@@ -197,8 +188,11 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
     if (!(*m.monitor_w > 0))
       return Error{ErrorCode::kDeviceFault,
                    "source monitor reads " + std::to_string(*m.monitor_w) + " W: lamp off?"};
-    // One reading's relative variance, pooled over the run; the mean's is that over n.
-    for (double w : e.monitor) monitor_pool_.sum2 += std::pow(w / *m.monitor_w - 1, 2);
+    // One reading's relative variance, pooled over the run; the mean's is that over n. From
+    // successive differences (von Neumann): a drift of the lamp during the point moves the
+    // readings and the frames alike, and the normalisation removes it, so it is not noise here.
+    for (std::size_t i = 1; i < e.monitor.size(); ++i)
+      monitor_pool_.sum2 += 0.5 * std::pow((e.monitor[i] - e.monitor[i - 1]) / *m.monitor_w, 2);
     monitor_pool_.weight += n - 1;
     monitor_rel_var = monitor_pool_.Variance() / n;
     if (!monitor_reference_) {  // kept for the record: the run's first reading
@@ -227,7 +221,7 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   const double signal = m.rect_mean - dark->mean;
   if (m.frames >= 2) {
     Pool& pool = lamp_pools_[static_cast<std::int64_t>(std::llround(t * 1e6))];
-    const double excess = acc.FrameMeansSd() * acc.FrameMeansSd() - m.pixel_var / m.rect_pixels;
+    const double excess = acc.FrameMeansVariance() - m.pixel_var / m.rect_pixels;  // drift-free
     pool.sum2 += (m.frames - 1) * excess;
     pool.weight += (m.frames - 1) * signal * signal;
     m.sigma_lamp = std::abs(m.value) * std::sqrt(pool.Variance() / m.frames);

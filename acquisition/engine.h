@@ -16,12 +16,17 @@
 // monitor's mean reading in mW when there is a monitor (so runs on different days compare),
 // proportional to BTDF * cos(theta_l) (docs/reference.md section 1). Its sigma is a budget of
 // three components, stored apart (docs/measurement.md):
-//   stat     shot, read and dark noise: the pooled per-pixel variance of the frames and the dark;
+//   stat     shot, read and dark noise: the pooled per-pixel variance of the frames (each pixel
+//            relative to its frame's mean, so that what all pixels share is left out) and the
+//            dark's;
 //   lamp     the lamp's fluctuation between the point's frames, which every pixel shares (so it
-//            does not average over the rectangle): the frames' means' spread beyond their
+//            does not average over the rectangle): the frames' means' scatter beyond their
 //            pixels' noise, pooled over the run's points of the same exposure;
-//   monitor  the normalisation: the spread of single monitor readings, pooled over the run, over
+//   monitor  the normalisation: the scatter of single monitor readings, pooled over the run, over
 //            the point's number of readings.
+// Both scatters come from successive differences (von Neumann): a drift of the lamp during the
+// point moves the frames and the readings alike and the normalisation removes it, so the spread
+// about the mean would count it twice as noise (docs/measurement.md).
 // Pooling matters: a variance estimated from a point's own 4 or 5 readings has 3 or 4 degrees of
 // freedom, and pulls normalised by it scatter 1.4 times wider than normal (Student's t).
 #pragma once

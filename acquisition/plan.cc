@@ -1,7 +1,10 @@
 #include "acquisition/plan.h"
 
+#include "acquisition/exposure.h"
+
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <sstream>
 
 #include "config/toml_reader.h"
@@ -427,7 +430,8 @@ std::optional<ExposureHistory::Entry> ExposureHistory::Near(const PlannedPoint& 
 
 double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
                        const std::vector<devices::AxisSettings>& axes, double typical_exposure_s,
-                       const ExposureHistory* history) {
+                       const ExposureHistory* history, const LobeForecast* forecast,
+                       EstimateParts* parts) {
   // A trapezoid per axis: distance / speed + speed / acceleration; axes move together.
   auto move_s = [&](const std::string& name, double from, double to) {
     const devices::AxisSettings* a = Axis(axes, name);
@@ -435,31 +439,72 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
     const double d = std::abs(to - from), v = a->speed_deg_s, acc = a->acceleration_deg_s2;
     return d >= v * v / acc ? d / v + v / acc : 2 * std::sqrt(d / acc);
   };
-  double total = 0;
+  EstimateParts e;
+  double clock = 0;  // bench time so far, for the darks' age
+  auto expose = [&](double t, int n) {
+    e.exposure_s += n * t;
+    clock += n * t;
+  };
+  std::map<double, double> darks;  // exposure -> when its dark set was taken
+  auto dark_for = [&](double t) {
+    auto it = std::find_if(darks.begin(), darks.end(),
+                           [&](const auto& d) { return std::abs(d.first - t) <= 1e-3 * t; });
+    if (it != darks.end() && clock - it->second <= plan.darks.max_age_s) return;
+    expose(t, plan.darks.frames);
+    e.dark_exposure_s += plan.darks.frames * t;
+    darks[it != darks.end() ? it->first : t] = clock;
+  };
   StageTargets at{0, 180, 0};
-  std::vector<double> darks_taken;  // exposures with a dark set in the library
+  double last_s = 0;  // the engine starts each point at the previous point's exposure
   for (const PlannedPoint& p : points) {
     if (p.skipped) continue;
-    total += std::max({move_s("sample", at.sample_deg, p.stage.sample_deg),
-                       move_s("arm", at.arm_deg, p.stage.arm_deg),
-                       move_s("azimuth", at.azimuth_deg, p.stage.azimuth_deg)});
-    const auto seen = history ? history->Near(p) : std::nullopt;
-    if (!seen) {
-      total += (plan.exposure.frames + 1) * typical_exposure_s;  // +1: the ranging frame
-    } else {
-      // The last ranging try is the first averaged frame; earlier tries priced at its exposure.
-      total += (plan.exposure.frames + seen->ranging_tries - 1) * seen->exposure_s;
-      const bool have_dark = std::any_of(darks_taken.begin(), darks_taken.end(), [&](double e) {
-        return std::abs(e - seen->exposure_s) <= 1e-3 * e;
-      });
-      if (!have_dark) {
-        total += plan.darks.frames * seen->exposure_s;
-        darks_taken.push_back(seen->exposure_s);
-      }
-    }
+    const double move = std::max({move_s("sample", at.sample_deg, p.stage.sample_deg),
+                                  move_s("arm", at.arm_deg, p.stage.arm_deg),
+                                  move_s("azimuth", at.azimuth_deg, p.stage.azimuth_deg)});
+    e.motion_s += move;
+    clock += move;
     at = p.stage;
+    ExposureHistory::Entry seen{};  // (a plain value: GCC 12 misreads an optional here)
+    bool have_seen = false;
+    if (history != nullptr)
+      if (const auto near = history->Near(p)) seen = *near, have_seen = true;
+    // Forecast: every transmission point, those the lobe does not reach too (rate 0: the engine
+    // ranges them up to max_s).
+    const bool forecast_it = forecast != nullptr && !have_seen && !p.reflection;
+    if (have_seen) {
+      // The last ranging try is the first averaged frame; earlier tries priced at its exposure.
+      ++e.from_history;
+      e.ranging_frames += seen.ranging_tries - 1;
+      expose(seen.exposure_s, plan.exposure.frames + seen.ranging_tries - 1);
+      dark_for(seen.exposure_s);
+      last_s = seen.exposure_s;
+    } else if (forecast_it) {
+      // The engine's ranging, played on the forecast.
+      ++e.from_forecast;
+      const double rate = forecast->Rate(p);
+      const ExposurePolicy& x = plan.exposure;
+      const double range = forecast->linear_limit_adu - forecast->bench.dark_adu;
+      double t = std::clamp(last_s > 0 ? last_s : OnLadder(x.initial_s), x.min_s, x.max_s);
+      for (int tries = 1;; ++tries) {
+        expose(t, 1);
+        dark_for(t);
+        const ExposureJudgement j = JudgeExposure(x, t, rate * t, range);
+        if (tries >= forecast->max_ranging_tries || (!j.too_bright && !j.too_dim) ||
+            (j.too_bright && t <= x.min_s))
+          break;
+        ++e.ranging_frames;
+        t = j.next_s;
+      }
+      expose(t, plan.exposure.frames - 1);
+      last_s = t;
+    } else {
+      ++e.from_typical;
+      ++e.ranging_frames;
+      expose(typical_exposure_s, plan.exposure.frames + 1);  // +1: the ranging frame
+    }
   }
-  return total;
+  if (parts != nullptr) *parts = e;
+  return e.motion_s + e.exposure_s;
 }
 
 }  // namespace gonio::acquisition

@@ -139,13 +139,29 @@ struct ExposureHistory {
   std::optional<Entry> Near(const PlannedPoint& p) const;
 };
 
+struct LobeForecast;  // exposure.h
+
+// What an estimate is made of (bench seconds and counts), for reports and tests.
+struct EstimateParts {
+  double motion_s = 0, exposure_s = 0;  // exposure_s: every frame, ranging tries and darks too
+  double dark_exposure_s = 0;           // of which darks
+  int ranging_frames = 0;               // tries beyond the first averaged frame
+  int from_history = 0, from_forecast = 0, from_typical = 0;  // points priced by each
+};
+
 // Seconds of bench time the run should take: moves along the order at the axes' speeds plus, per
-// point, its frames and ranging tries. Without history (or where it has no nearby point) every
-// point is priced at `typical_exposure_s` with one ranging frame. With history, each point takes
-// the exposure and ranging tries of the nearest earlier point, plus a dark set at each exposure
-// not seen before in the run (the dark library is reused while fresh). Readout is not counted.
+// point, its frames, ranging tries and the darks the engine takes at each exposure it tries
+// (reused while fresh, DarkPolicy::max_age_s). Each point is priced, in this order, at:
+//   - the exposure and ranging tries of the nearest point of `history` (an earlier run of the
+//     specimen);
+//   - the engine's own ranging (JudgeExposure) played on `forecast`'s expected brightness (the
+//     specimen's catalogue lobe at the bench's measured throughput), from the previous point's
+//     exposure as the engine starts;
+//   - `typical_exposure_s` with one ranging frame.
+// Readout is not counted.
 double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points,
                        const std::vector<devices::AxisSettings>& axes, double typical_exposure_s,
-                       const ExposureHistory* history = nullptr);
+                       const ExposureHistory* history = nullptr,
+                       const LobeForecast* forecast = nullptr, EstimateParts* parts = nullptr);
 
 }  // namespace gonio::acquisition

@@ -9,13 +9,19 @@ void RectAccumulator::Add(const cv::Mat1w& frame) {
   const cv::Mat1w roi = frame(rect_);
   cv::Mat1d d;
   roi.convertTo(d, CV_64F);
-  if (n_ == 0) {
-    sum_ = cv::Mat1d::zeros(rect_.size());
-    sum2_ = cv::Mat1d::zeros(rect_.size());
-  }
-  sum_ += d;
-  sum2_ += d.mul(d);
   const double m = cv::mean(d)[0];
+  // Each pixel relative to its frame's mean: what every pixel shares (the lamp, its drift) drops
+  // out, and pixel noise is left.
+  const cv::Mat1d rel = d / std::max(m, 1.0);
+  if (n_ == 0) {
+    rel_sum_ = cv::Mat1d::zeros(rect_.size());
+    rel_sum2_ = cv::Mat1d::zeros(rect_.size());
+  } else {
+    frame_dsum2_ += (m - last_mean_) * (m - last_mean_);
+  }
+  rel_sum_ += rel;
+  rel_sum2_ += rel.mul(rel);
+  last_mean_ = m;
   frame_sum_ += m;
   frame_sum2_ += m * m;
   double lo = 0, hi = 0;
@@ -33,11 +39,17 @@ double RectAccumulator::FrameMeansSd() const {
   return std::sqrt(std::max(0.0, (frame_sum2_ - n_ * m * m) / (n_ - 1)));
 }
 
+double RectAccumulator::FrameMeansVariance() const {
+  return n_ < 2 ? 0 : frame_dsum2_ / (2.0 * (n_ - 1));
+}
+
 double RectAccumulator::PixelVariance() const {
   if (n_ < 2) return 0;
-  // Per pixel: (sum2 - sum^2 / n) / (n - 1); pooled: their mean over the rectangle.
-  const cv::Mat1d v = (sum2_ - sum_.mul(sum_) / n_) / (n_ - 1);
-  return std::max(0.0, cv::mean(v)[0]);
+  // Per pixel: (sum2 - sum^2 / n) / (n - 1) of the relative values; pooled: their mean over the
+  // rectangle, back in ADU^2 at the mean level.
+  const cv::Mat1d v = (rel_sum2_ - rel_sum_.mul(rel_sum_) / n_) / (n_ - 1);
+  const double level = Mean();
+  return std::max(0.0, cv::mean(v)[0]) * level * level;
 }
 
 }  // namespace gonio::acquisition

@@ -1,8 +1,13 @@
 // Image reduction: the fixed rectangle of each frame accumulated over the frames of one point.
-// Per pixel it keeps the sum and the sum of squares, so that the noise of the rectangle's mean is
-// estimated from the pooled per-pixel variance between frames (many degrees of freedom, so the
-// uncertainties are honest with a few frames), independent of the scene's gradient across the
-// rectangle. Frames are not retained: only two small double images per point.
+// The noise of the rectangle's mean is estimated from the pooled per-pixel variance between
+// frames (many degrees of freedom, so the uncertainties are honest with a few frames),
+// independent of the scene's gradient across the rectangle. Each pixel is taken relative to its
+// frame's mean first, so that what all pixels share (the lamp's flicker and its drift during the
+// point) is not counted as pixel noise: the engine budgets the lamp apart, and the monitor
+// normalisation removes the drift. The frames' common scatter is estimated from successive
+// differences (von Neumann 1941: E[sum (x_k+1 - x_k)^2] = 2 (n - 1) var for independent
+// scatter), which a slow drift moves less than the spread about the mean (for a linear drift over
+// 4 frames, 2.5 times less). Frames are not retained: two small double images per point.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -19,18 +24,22 @@ class RectAccumulator {
 
   int frames() const { return n_; }
   int pixels() const { return rect_.area(); }
-  double Mean() const;                 // over pixels and frames, ADU
-  double FrameMeansSd() const;         // sd of the frames' rectangle means (0 for one frame)
-  double PixelVariance() const;        // pooled per-pixel variance between frames (needs 2 frames)
-  double Max() const { return max_; }  // the brightest pixel seen
+  double Mean() const;          // over pixels and frames, ADU
+  double FrameMeansSd() const;  // sd of the frames' rectangle means (0 for one frame)
+  // The same from successive differences: the frames' means' scatter without a drift (0 for one
+  // frame).
+  double FrameMeansVariance() const;
+  // Pooled per-pixel variance between frames, what the pixels share left out (needs 2 frames).
+  double PixelVariance() const;
+  double Max() const { return max_; }           // the brightest pixel seen
   int Saturated() const { return saturated_; }  // pixels at or above clip, summed over frames
 
  private:
   cv::Rect rect_;
   double clip_;
   int n_ = 0;
-  cv::Mat1d sum_, sum2_;
-  double frame_sum_ = 0, frame_sum2_ = 0;  // of the frames' means
+  cv::Mat1d rel_sum_, rel_sum2_;  // per pixel, relative to its frame's mean: sum, sum of squares
+  double frame_sum_ = 0, frame_sum2_ = 0, frame_dsum2_ = 0, last_mean_ = 0;  // frames' means
   double max_ = 0;
   int saturated_ = 0;
 };

@@ -4,6 +4,7 @@
 
 #include <sqlite3.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -467,6 +468,45 @@ Result<std::optional<ExposureHistory>> Storage::LatestExposures(const std::strin
     h.entries.push_back({r.point.theta_l_deg, r.point.theta_v_deg, r.point.phi_deg, r.m.exposure_s,
                          r.m.ranging_tries, r.point.reflection});
   return std::optional<ExposureHistory>(std::move(h));
+}
+
+Result<std::optional<Throughput>> Storage::LatestThroughput() {
+  std::lock_guard guard(mu_);
+  Stmt q(db_,
+         "SELECT r.id, json_extract(f.parameters, '$.scale'), "
+         "coalesce(json_extract(f.parameters, '$.floor'), 0) FROM runs r "
+         "JOIN fit_results f ON f.run_id = r.id "
+         "WHERE r.status = 'done' AND json_valid(f.parameters) "
+         "AND json_extract(f.parameters, '$.chosen') = 1 "
+         "AND json_extract(f.parameters, '$.scale') > 0 ORDER BY r.id DESC, f.id DESC LIMIT 1");
+  int rc = q.Step();
+  if (rc == SQLITE_DONE) return std::optional<Throughput>();
+  if (rc != SQLITE_ROW) return q.Fail("looking for a run with a fit");
+  Throughput t;
+  t.run = q.I(0);
+  t.scale = q.D(1);
+  t.floor = std::max(0.0, q.D(2));
+  // Counts per stored value: the rectangle's rate above its dark over the value (the monitor
+  // normalisation), and the dark's level; medians, so that a stray point does not decide.
+  Stmt m(db_,
+         "SELECT (m.rect_mean - d.rect_mean) / m.exposure_s / m.value, d.rect_mean "
+         "FROM measurements m JOIN darks d ON d.id = m.dark_id "
+         "WHERE m.run_id = ? AND m.value > 0 AND m.exposure_s > 0");
+  m.Bind(1, t.run);
+  std::vector<double> per_value, dark;
+  while ((rc = m.Step()) == SQLITE_ROW) {
+    if (m.D(0) > 0) per_value.push_back(m.D(0));
+    dark.push_back(m.D(1));
+  }
+  if (rc != SQLITE_DONE) return m.Fail("reading run " + std::to_string(t.run) + "'s exposures");
+  if (per_value.empty()) return std::optional<Throughput>();
+  auto median = [](std::vector<double>& v) {
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  t.adu_per_value = median(per_value);
+  t.dark_adu = median(dark);
+  return std::optional<Throughput>(t);
 }
 
 Result<std::int64_t> Storage::StoreDark(const DarkRecord& d) {

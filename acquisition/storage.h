@@ -14,6 +14,7 @@
 #include <string_view>
 #include <vector>
 
+#include "acquisition/exposure.h"
 #include "acquisition/plan.h"
 #include "common/result.h"
 
@@ -74,7 +75,7 @@ struct Measurement {
   double temperature_c = 0;
   std::optional<double> monitor_w;
   double rect_mean = 0, rect_sd = 0;  // ADU, mean over frames; sd of the frames' means
-  double pixel_var = 0;               // pooled per-pixel variance between frames, ADU^2
+  double pixel_var = 0;  // pooled per-pixel variance between frames, ADU^2 (common mode out)
   int rect_pixels = 0, rect_saturated = 0;
   std::int64_t dark_id = 0;
   double value = 0, sigma = 0;  // dark-subtracted, normalised counts per second
@@ -133,6 +134,9 @@ class Storage {
   // The exposures of the newest finished ("done") run of this specimen, to estimate a new plan's
   // time (EstimateSeconds); nullopt if the specimen has none.
   Result<std::optional<ExposureHistory>> LatestExposures(const std::string& specimen);
+  // The bench's throughput (exposure.h) from the newest finished run of any specimen that has a
+  // chosen fit with a scale, for estimates of specimens never measured; nullopt if there is none.
+  Result<std::optional<Throughput>> LatestThroughput();
 
   Result<std::int64_t> StoreDark(const DarkRecord& d);
 

@@ -28,7 +28,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::string_view text(reinterpret_cast<const char*>(data), size);
   (void)gonio::daemon::PlanReferences(text, "fuzz.toml");
   const std::map<std::string, std::string> plans = {{"plan.toml", kPlan}};
-  (void)gonio::daemon::ParseSchedule(text, "fuzz.toml", plans, context,
-                                     [](const std::string&) { return std::nullopt; });
+  gonio::daemon::EstimateBasis basis;
+  basis.history = [](const std::string&) { return std::nullopt; };
+  (void)gonio::daemon::ParseSchedule(text, "fuzz.toml", plans, context, basis);
   return 0;
 }

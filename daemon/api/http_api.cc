@@ -377,13 +377,18 @@ void ApiServer::RouteSchedules() {
     if (!name) return;
     const auto dry_run = BoolField(*body, "dry_run", false, res);
     if (!dry_run) return;
-    // Estimates price each point at what the newest finished run of the specimen needed.
-    auto history = [this](const std::string& specimen) {
+    // Estimates price each point at what the newest finished run of the specimen needed, else
+    // at the specimen's expected lobe through the bench's throughput (issue #17).
+    EstimateBasis basis;
+    basis.history = [this](const std::string& specimen) {
       auto h = reader_->LatestExposures(specimen);
       return h.ok() ? *h : std::nullopt;
     };
+    if (auto t = reader_->LatestThroughput(); t.ok()) basis.throughput = *t;
+    basis.linear_limit_adu = c.engine_options().linear_limit_adu;
+    basis.max_ranging_tries = c.engine_options().max_ranging_tries;
     auto schedule =
-        ParseSchedule((*body)["schedule"].get<std::string>(), *name, plans, c.context(), history);
+        ParseSchedule((*body)["schedule"].get<std::string>(), *name, plans, c.context(), basis);
     if (!schedule.ok()) return ReplyError(res, schedule.error());
     if (*dry_run) {
       json steps = json::array();

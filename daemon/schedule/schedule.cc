@@ -47,7 +47,7 @@ double Schedule::EstimateSeconds() const {
 Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
                                const std::map<std::string, std::string>& plans,
                                const acquisition::PlanContext& context,
-                               const ExposureLookup& history) {
+                               const EstimateBasis& basis) {
   auto parsed = config::ParseTomlText(text, name);
   if (!parsed.ok()) return parsed.error();
   const toml::table& root = *parsed;
@@ -74,11 +74,16 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
     if (!plan.ok()) return plan.error();
     const auto points = acquisition::ExpandPoints(*plan, context);
     for (const auto& p : points) (p.skipped ? e.skipped : e.points) += 1;
-    const auto seen = history ? history(plan->specimen.name) : std::nullopt;
+    const auto seen = basis.history ? basis.history(plan->specimen.name) : std::nullopt;
+    const auto forecast =
+        seen ? std::nullopt
+             : acquisition::ForecastFor(plan->specimen, basis.throughput, basis.linear_limit_adu,
+                                        basis.max_ranging_tries);
+    const acquisition::ExposureHistory* h = seen ? &*seen : nullptr;
+    const acquisition::LobeForecast* lobe = forecast ? &*forecast : nullptr;
     e.estimate_s = acquisition::EstimateSeconds(*plan, points, context.axes,
-                                                plan->exposure.initial_s, seen ? &*seen : nullptr);
-    e.estimate_basis =
-        seen ? "run " + std::to_string(seen->run) + "'s exposures" : "the plan's initial exposure";
+                                                plan->exposure.initial_s, h, lobe);
+    e.estimate_basis = acquisition::DescribeEstimateBasis(h, lobe);
     GONIO_TRY(r.Integer(*t, "repeat", &e.repeat, 1, 1000));
     if (const toml::node* s = t->get("start_at")) {
       std::string iso;

@@ -26,6 +26,7 @@
 #include <string_view>
 #include <vector>
 
+#include "acquisition/exposure.h"
 #include "acquisition/plan.h"
 #include "common/result.h"
 
@@ -49,7 +50,7 @@ struct ScheduleEntry {
   // From the plan: what a dry run reports.
   int points = 0, skipped = 0;
   double estimate_s = 0;       // motion and exposure of one run (bench seconds)
-  std::string estimate_basis;  // "run N's exposures" or "the plan's initial exposure"
+  std::string estimate_basis;  // acquisition::DescribeEstimateBasis
 };
 
 struct Schedule {
@@ -62,12 +63,22 @@ struct Schedule {
 using ExposureLookup =
     std::function<std::optional<acquisition::ExposureHistory>(const std::string& specimen)>;
 
-// plans: plan name (as written in the schedule) -> its text. With `history`, each entry's
-// estimate prices its points at the exposures an earlier run of its specimen needed.
+// What prices a plan before it runs (acquisition::EstimateSeconds): an earlier run of its
+// specimen, else the specimen's expected lobe at the bench's throughput, else the plan's first
+// exposure.
+struct EstimateBasis {
+  ExposureLookup history;
+  std::optional<acquisition::Throughput> throughput;  // Storage::LatestThroughput
+  double linear_limit_adu = 65535;                    // the engine's (EngineOptions)
+  int max_ranging_tries = 12;
+};
+
+// plans: plan name (as written in the schedule) -> its text. Each entry's estimate is priced on
+// `basis`.
 Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
                                const std::map<std::string, std::string>& plans,
                                const acquisition::PlanContext& context,
-                               const ExposureLookup& history = {});
+                               const EstimateBasis& basis = {});
 
 // The plan files a schedule names, each once, with the line that names it: what a client reads
 // and sends along with the schedule. Only the TOML syntax is checked here (errors

@@ -117,6 +117,7 @@ class Controller {
   // Queues every run of a parsed schedule (the cooler wait before each entry's first run).
   Result<std::vector<Job>> Submit(const Schedule& schedule);
   const acquisition::PlanContext& context() const { return context_; }
+  const acquisition::EngineOptions& engine_options() const { return o_.engine; }
   std::vector<Job> Jobs() const;  // current first, then the queue in order, then finished ones
   Result<Job> GetJob(std::int64_t id) const;  // kNotFound
   // Queued jobs only (kFailedPrecondition otherwise: a running one is aborted instead).

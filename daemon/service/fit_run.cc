@@ -63,10 +63,10 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
     rf.model = fitting::Describe(f.model);
     rf.summary = f;
     rf.samples = p.protocol ? "normal incidence" : "all incidences";
-    nlohmann::json params{{"width", f.width.value},   {"width_sigma", f.width.sigma},
-                          {"scale", f.scale.value},   {"eta", f.eta.value},
-                          {"samples", rf.samples},    {"chosen", p.choice.chosen == k},
-                          {"choice", p.choice.reason}};
+    nlohmann::json params{{"width", f.width.value},         {"width_sigma", f.width.sigma},
+                          {"scale", f.scale.value},         {"eta", f.eta.value},
+                          {"floor", f.floor.value},         {"samples", rf.samples},
+                          {"chosen", p.choice.chosen == k}, {"choice", p.choice.reason}};
     if (p.protocol) {
       params["joint"] = fitting::ToJson(p.joint_fits[k]);
       nlohmann::json predictions = nlohmann::json::array();

@@ -71,21 +71,26 @@ Result<std::optional<RunInfo>> RunToResume(Storage& store, std::int64_t run_id,
 }
 
 // The plan's points, the skipped ones with their reasons, and the bench time it will take,
-// priced at the exposures the newest finished run of its specimen needed, if there is one.
+// priced at the exposures the newest finished run of its specimen needed if there is one, else
+// at the specimen's expected lobe through the bench's throughput (issue #17).
 Status PrintPlanSummary(Storage& store, const std::string& plan_path, const Plan& plan,
                         const std::vector<PlannedPoint>& points,
-                        const std::vector<devices::AxisSettings>& axes) {
+                        const config::InstrumentConfig& cfg) {
   int skipped = 0;
   for (const auto& p : points) skipped += p.skipped;
   auto history = store.LatestExposures(plan.specimen.name);
   if (!history.ok()) return history.error();
   const ExposureHistory* seen = *history ? &**history : nullptr;
-  const double estimate = EstimateSeconds(plan, points, axes, plan.exposure.initial_s, seen);
+  auto throughput = store.LatestThroughput();
+  if (!throughput.ok()) return throughput.error();
+  const auto forecast = seen ? std::nullopt
+                             : ForecastFor(plan.specimen, *throughput, cfg.camera.linear_limit_adu,
+                                           EngineOptions{}.max_ranging_tries);
+  const LobeForecast* f = forecast ? &*forecast : nullptr;
+  const double estimate = EstimateSeconds(plan, points, cfg.axes, plan.exposure.initial_s, seen, f);
   std::cout << "plan " << plan_path << ": " << plan.specimen.name << ", " << points.size() - skipped
             << " points (" << skipped << " skipped), about " << Duration(estimate)
-            << " of bench time for motion and exposure (from "
-            << (seen ? "run " + std::to_string(seen->run) + "'s exposures"
-                     : std::string("the plan's initial exposure"))
+            << " of bench time for motion and exposure (from " << DescribeEstimateBasis(seen, f)
             << ")\n";
   for (const auto& p : points)
     if (p.skipped)
@@ -197,7 +202,7 @@ int main(int argc, char** argv) {
   if (!plan.ok()) return Fail(plan.error());
   const auto points = ExpandPoints(*plan, ctx);
   if (dry_run || *run_cmd)
-    if (Status st = PrintPlanSummary(store, plan_path, *plan, points, cfg->axes); !st.ok())
+    if (Status st = PrintPlanSummary(store, plan_path, *plan, points, *cfg); !st.ok())
       return Fail(st.error());
   if (dry_run) return 0;
   if (*run_cmd) {

@@ -16,6 +16,7 @@
 #include <thread>
 
 #include "acquisition/engine.h"
+#include "acquisition/exposure.h"
 #include "fitting/fitter.h"
 #include "fitting/samples_csv.h"
 #include "sim/truth/monte_carlo.h"
@@ -460,6 +461,114 @@ TEST_F(EngineOnTheDemoLamp, SigmaIsItsComponentsAndRepeatedRunsAgreeWithinIt) {
   // Both instrument terms are present somewhere in the run (not zero by construction).
   EXPECT_GT(lamp, 0.2);
   EXPECT_GT(monitor, 0.2);
+}
+
+// Issue #17: a plan is priced before its specimen was ever measured. One run of etched glass
+// (Beckmann 0.493) and its fit give the bench's throughput; the ground glass's plan is then
+// priced from its catalogue width (0.344) through it, and measured on a bench with the ground
+// glass in it. The estimate's exposure time (frames, ranging tries, darks) must be within 30 % of
+// the engine's; the plan's initial exposure, the only basis before, is far off.
+TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSpecimen) {
+  const std::string db_path = (std::filesystem::temp_directory_path() /
+                               ("gonio_estimate_" + std::to_string(::getpid()) + ".sqlite"))
+                                  .string();
+  std::filesystem::remove(db_path);
+  auto opened = Storage::Open(db_path);
+  ASSERT_TRUE(opened.ok());
+  std::unique_ptr<Storage> store = std::move(*opened);
+  const std::vector<Specimen> catalogue = {{"etched-glass-E1", "glass", 6, 1.51, 0.493},
+                                           {"ground-glass-G1", "glass", 6, 1.51, 0.344}};
+  const EngineOptions eo{.linear_limit_adu = 65000};
+  // The demo's geometry, coarser: 0 and 45 degrees, the lobe and its tails.
+  auto plan_for = [&](const std::string& specimen, const std::vector<devices::AxisSettings>& axes)
+      -> std::pair<Plan, std::vector<PlannedPoint>> {
+    const std::string path = db_path + ".plan.toml";
+    std::ofstream(path) << "sample = \"" << specimen << "\"\n[geometry]\nincidence_deg = [0, 45]\n"
+                        << "view_about = \"refracted\"\nview_from_deg = -50\nview_to_deg = 50\n"
+                        << "view_step_deg = 5\n[exposure]\nframes = 3\ninitial_s = 0.05\n"
+                        << "max_s = 20\n[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n"
+                        // The engine ages darks by the wall clock, which the simulated bench's
+                        // runs 300 times slower than its own: no dark expires in a test run.
+                        << "[darks]\nmax_age_s = 100000\n";
+    PlanContext ctx;
+    ctx.specimens = catalogue;
+    ctx.axes = axes;
+    ctx.image_width = ctx.image_height = 512;
+    auto plan = LoadPlan(path, ctx);
+    EXPECT_TRUE(plan.ok()) << plan.error().message;
+    std::filesystem::remove(path);
+    return {*plan, ExpandPoints(*plan, ctx)};
+  };
+  auto measure = [&](gonio::testing::SimInstrument& inst, const Plan& plan,
+                     const std::vector<PlannedPoint>& points) -> std::pair<std::int64_t, double> {
+    auto sp = store->EnsureSpecimen(plan.specimen);
+    auto cfg = store->StoreConfig("test");
+    auto run = store->CreateRun(*sp, *cfg, plan.text, points);
+    EXPECT_TRUE(run.ok());
+    Engine engine(*inst.stages, *inst.camera, inst.meter, *store, eo);
+    std::atomic<bool> stop{false};
+    const Status st = engine.Run(*run, plan, stop);
+    EXPECT_TRUE(st.ok()) << st.error().message;
+    std::printf("measured: %d ranging frames, darks %.0f s\n", engine.stats().ranging_frames,
+                engine.stats().dark_exposure_s);
+    return {*run, engine.stats().exposure_s};
+  };
+
+  {  // The etched glass, measured and fitted: the throughput.
+    gonio::testing::SimInstrument inst;
+    gonio::testing::SimInstrumentOptions o;
+    o.truth = sim::MicrofacetTruth("beckmann", 0.493, 1.51);
+    ASSERT_TRUE(inst.Start(o).ok());
+    auto [plan, points] = plan_for("etched-glass-E1", inst.axes);
+    const auto [run, exposed_s] = measure(inst, plan, points);
+    ASSERT_GT(exposed_s, 0);
+    auto rows = store->Measurements(run);
+    ASSERT_TRUE(rows.ok());
+    std::vector<fitting::Sample> samples;
+    for (const MeasurementRow& r : *rows)
+      samples.push_back(fitting::SampleFromBenchAngles(r.point.theta_l_deg, 0, r.point.theta_v_deg,
+                                                       0, r.m.value, r.m.sigma));
+    fitting::FitOptions fo;
+    fo.eta = 1.51;
+    fo.floor = fitting::Floor::kAuto;  // the lens's stray light, as goniod fits it
+    auto fit = fitting::Fit(fitting::WithSystematic(samples, 0.02), fo);
+    ASSERT_TRUE(fit.ok()) << fit.error().message;
+    const std::string params = "{\"scale\": " + std::to_string(fit->scale.value) +
+                               ", \"width\": " + std::to_string(fit->width.value) +
+                               ", \"floor\": " + std::to_string(fit->floor.value) +
+                               ", \"chosen\": true}";
+    ASSERT_TRUE(store->StoreFitResult(run, "beckmann", params, "{}").ok());
+  }
+  auto throughput = store->LatestThroughput();
+  ASSERT_TRUE(throughput.ok()) << throughput.error().message;
+  ASSERT_TRUE(throughput->has_value()) << "a finished run with a chosen fit gives a throughput";
+
+  gonio::testing::SimInstrument inst;  // the ground glass, never measured
+  ASSERT_TRUE(inst.Start(gonio::testing::SimInstrumentOptions{}).ok());
+  auto [plan, points] = plan_for("ground-glass-G1", inst.axes);
+  auto seen = store->LatestExposures("ground-glass-G1");
+  ASSERT_TRUE(seen.ok());
+  ASSERT_FALSE(seen->has_value());
+  const auto forecast =
+      ForecastFor(plan.specimen, *throughput, eo.linear_limit_adu, eo.max_ranging_tries);
+  ASSERT_TRUE(forecast);
+  EstimateParts priced, naive;
+  EstimateSeconds(plan, points, inst.axes, plan.exposure.initial_s, nullptr, &*forecast, &priced);
+  EstimateSeconds(plan, points, inst.axes, plan.exposure.initial_s, nullptr, nullptr, &naive);
+  const auto measured_points =
+      std::count_if(points.begin(), points.end(), [](const PlannedPoint& p) { return !p.skipped; });
+  EXPECT_EQ(priced.from_forecast, measured_points);
+  const auto [run, exposed_s] = measure(inst, plan, points);
+  std::printf(
+      "exposure time: measured %.0f s; forecast %.0f s (%+.0f %%, %d ranging frames, darks %.0f "
+      "s); at the plan's initial exposure %.0f s (%+.0f %%)\n",
+      exposed_s, priced.exposure_s, 100 * (priced.exposure_s / exposed_s - 1),
+      priced.ranging_frames, priced.dark_exposure_s, naive.exposure_s,
+      100 * (naive.exposure_s / exposed_s - 1));
+  EXPECT_NEAR(priced.exposure_s / exposed_s, 1.0, 0.3);
+  EXPECT_LT(naive.exposure_s / exposed_s, 0.3) << "the old basis was not far off: a weak test";
+  store.reset();
+  for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
 }
 
 // Issue #8, through the whole instrument: explicit rough surfaces of known sigma and tau, traced

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <string>
 
+#include "acquisition/exposure.h"
 #include "acquisition/plan.h"
 #include "fitting/model.h"
 
@@ -271,6 +272,53 @@ TEST(Plan, EstimateGrowsWithExposureAndMotion) {
   // 10 points of (4 frames + 1 ranging frame): 5 * 0.99 s more each.
   EXPECT_NEAR(slow - fast, 10 * 5 * 0.99, 1e-9);
   EXPECT_GT(fast, 10 * 5 * 0.01);  // the motion adds to the exposures
+}
+
+// Issue #17: before any run of the specimen, each point is priced by the engine's ranging played
+// on the expected lobe. A lobe bright enough that the first try (0.05 s, the plan's) saturates
+// is cut to a quarter, then scaled to the target; a point the lobe does not reach ranges up to
+// max_s. Checked against the rule written out here, not against the estimate's own code.
+TEST(Plan, BeforeAnyRunPointsArePricedByTheEnginesRangingOnTheExpectedLobe) {
+  auto p = LoadPlan(kData + "/plans/good.toml", Context());
+  ASSERT_TRUE(p.ok());
+  std::vector<PlannedPoint> points = ExpandPoints(*p, Context());
+  // One point: light at 0, straight through.
+  points.resize(1);
+  points[0].theta_l_deg = 0;
+  points[0].theta_v_deg = 0;
+  LobeForecast f;
+  f.alpha = 0.344;
+  f.eta = 1.51;
+  f.bench.adu_per_value = 1;
+  f.bench.dark_adu = 535;
+  f.linear_limit_adu = 65535;  // range 65000
+  f.bench.scale = 1;
+  const double peak_f = f.Rate(points[0]);
+  ASSERT_GT(peak_f, 0.5);  // Beckmann 0.344 at the straight-through view: about 0.7 per sr
+  // The first try is the plan's 0.05 s on the 8-per-decade ladder, rounded down: 10^(-11/8).
+  const double t0 = std::pow(10.0, -11.0 / 8);
+  // Scale so that it reaches 95 % of the range: too bright (past 90 %). Next: t0 * min(0.25,
+  // 0.5 / 0.95) = 0.0105 s, on the ladder 10^(-16/8) = 0.01 s, which gives 22.5 % of the range:
+  // above a quarter of the target (12.5 %), kept.
+  f.bench.scale = 0.95 * 65000 / t0 / peak_f;
+  EstimateParts e;
+  const double motion = EstimateSeconds(*p, points, Context().axes, 0, nullptr, nullptr);
+  const double total = EstimateSeconds(*p, points, Context().axes, 0, nullptr, &f, &e);
+  EXPECT_EQ(e.from_forecast, 1);
+  EXPECT_EQ(e.ranging_frames, 1);
+  // Tries t0 and 0.01 s, each with its dark set (4 frames), then 3 more frames at 0.01 s.
+  EXPECT_NEAR(e.exposure_s, 5 * t0 + 5 * 0.01 + 3 * 0.01, 1e-9);
+  EXPECT_NEAR(e.dark_exposure_s, 4 * t0 + 4 * 0.01, 1e-9);
+  EXPECT_NEAR(total, motion + e.exposure_s, 1e-9);
+  // The lobe does not reach it: t0, then x100 (10^(5/8) = 4.22 s), then x100 again, cut to
+  // max_s (20 s), where nothing more is gained: kept.
+  f.bench.scale = 0;
+  EstimateSeconds(*p, points, Context().axes, 0, nullptr, &f, &e);
+  EXPECT_EQ(e.ranging_frames, 2);
+  const double t1 = std::pow(10.0, 5.0 / 8);
+  EXPECT_NEAR(e.exposure_s, 5 * t0 + 5 * t1 + 5 * 20 + 3 * 20, 1e-9);
+  EXPECT_EQ(DescribeEstimateBasis(nullptr, &f),
+            "the expected lobe (Beckmann alpha 0.344) at run 0's throughput");
 }
 
 // With an earlier run's exposures, points are priced at what they took then: here every point at

@@ -111,6 +111,48 @@ TEST_F(StorageTest, PointsAreStoredOnceAndTheRestStayPending) {
   EXPECT_FALSE((*s)->UnfinishedRun()->has_value());
 }
 
+// Issue #17: what the bench delivers, for estimates of specimens never measured, comes from a
+// finished run with a chosen fit: the fit's scale and floor, and the counts per stored value
+// (the median, so that one odd point does not decide).
+TEST_F(StorageTest, TheBenchsThroughputComesFromAFinishedRunWithAChosenFit) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  Storage& db = **s;
+  const auto run = NewRun(db, 3);
+  DarkRecord d;
+  d.exposure_s = 0.5;
+  d.frames = 4;
+  d.mean = 500;
+  auto dark = db.StoreDark(d);
+  ASSERT_TRUE(dark.ok());
+  const double per_value[] = {3, 3.2, 30};  // ADU per second per unit of value; one stray point
+  for (int k = 0; k < 3; ++k) {
+    Measurement m = M(k, 10.0 * (k + 1));
+    m.dark_id = *dark;
+    m.rect_mean = 500 + m.value * per_value[k] * m.exposure_s;
+    ASSERT_TRUE(db.StoreMeasurement(run, m).ok());
+  }
+  auto none = [&] {
+    auto t = db.LatestThroughput();
+    EXPECT_TRUE(t.ok());
+    return t.ok() && !t->has_value();
+  };
+  EXPECT_TRUE(none()) << "no fit yet";
+  ASSERT_TRUE(db.StoreFitResult(run, "ggx", R"({"scale": 7, "chosen": false})", "{}").ok());
+  ASSERT_TRUE(
+      db.StoreFitResult(run, "beckmann", R"({"scale": 5, "floor": 0.25, "chosen": true})", "{}")
+          .ok());
+  EXPECT_TRUE(none()) << "the run is not finished";
+  ASSERT_TRUE(db.SetRunStatus(run, RunStatus::kDone).ok());
+  auto t = db.LatestThroughput();
+  ASSERT_TRUE(t.ok() && t->has_value());
+  EXPECT_EQ((*t)->run, run);
+  EXPECT_DOUBLE_EQ((*t)->scale, 5);  // the chosen fit's, not the other's
+  EXPECT_DOUBLE_EQ((*t)->floor, 0.25);
+  EXPECT_NEAR((*t)->adu_per_value, 3.2, 1e-9);
+  EXPECT_DOUBLE_EQ((*t)->dark_adu, 500);
+}
+
 TEST_F(StorageTest, ExportIsReadByTheFittersCsvReader) {
   auto s = Storage::Open(path);
   ASSERT_TRUE(s.ok());

@@ -1,0 +1,58 @@
+#include "acquisition/exposure.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "fitting/model.h"
+#include "fitting/sample.h"
+
+namespace gonio::acquisition {
+
+double OnLadder(double t) { return std::pow(10.0, std::floor(8 * std::log10(t) + 1e-9) / 8); }
+
+ExposureJudgement JudgeExposure(const ExposurePolicy& x, double t, double peak_adu,
+                                double range_adu) {
+  ExposureJudgement j;
+  j.too_bright = peak_adu >= x.saturation * range_adu;
+  // Dim: below a quarter of the target (counts are cheap while exposures are short), or below
+  // the floor; at max_s there is nothing more to gain.
+  j.too_dim =
+      !j.too_bright && peak_adu < std::max(x.floor, 0.25 * x.target) * range_adu && t < x.max_s;
+  const double goal = x.target * range_adu / std::max(peak_adu, 1.0);
+  // Saturated pixels hide how bright the peak is: cut hard. Otherwise scale to the target, at
+  // most x100 per step.
+  const double next = j.too_bright ? t * std::min(0.25, goal) : t * std::min(goal, 100.0);
+  j.next_s = std::clamp(OnLadder(next), x.min_s, x.max_s);
+  return j;
+}
+
+double LobeForecast::Rate(const PlannedPoint& p) const {
+  if (p.reflection) return 0;
+  const fitting::Sample s =
+      fitting::SampleFromBenchAngles(p.theta_l_deg, p.phi_deg, p.theta_v_deg, p.phi_deg, 0, 1);
+  const double f =
+      fitting::ModelBtdf(fitting::ModelSpec{}, s.light, s.view, alpha, eta) * std::abs(s.light.z);
+  return std::max(0.0, bench.adu_per_value * (bench.scale * f + bench.floor));
+}
+
+std::optional<LobeForecast> ForecastFor(const Specimen& specimen,
+                                        const std::optional<Throughput>& bench,
+                                        double linear_limit_adu, int max_ranging_tries) {
+  if (!bench || !specimen.expected_alpha) return std::nullopt;
+  return LobeForecast{*bench, *specimen.expected_alpha, specimen.eta, linear_limit_adu,
+                      max_ranging_tries};
+}
+
+std::string DescribeEstimateBasis(const ExposureHistory* history, const LobeForecast* forecast) {
+  if (history != nullptr) return "run " + std::to_string(history->run) + "'s exposures";
+  if (forecast != nullptr) {
+    char alpha[32];
+    std::snprintf(alpha, sizeof alpha, "%.3g", forecast->alpha);
+    return std::string("the expected lobe (Beckmann alpha ") + alpha + ") at run " +
+           std::to_string(forecast->bench.run) + "'s throughput";
+  }
+  return "the plan's initial exposure";
+}
+
+}  // namespace gonio::acquisition

@@ -1,0 +1,65 @@
+// Auto-ranging and what a point's exposure will be before it is measured (issue #17).
+//
+// The engine ranges each point's exposure on its frames: JudgeExposure says whether a try is
+// kept or which exposure comes next. Before a run, the same rule is played on a forecast of each
+// point's brightness: the specimen's expected lobe (Beckmann at the catalogue's width) times
+// the bench's throughput, measured on an earlier run of any specimen. So the estimate of a plan
+// never measured on this specimen prices its points at the exposures the engine will choose,
+// not at the plan's first try.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "acquisition/plan.h"
+
+namespace gonio::acquisition {
+
+// Exposures on a ladder of 8 steps per decade (rounded down): neighbouring points share their
+// exposures, so the dark library serves them without a dark per point.
+double OnLadder(double t);
+
+struct ExposureJudgement {
+  bool too_bright = false;  // a rectangle pixel at or past `saturation` of the range
+  bool too_dim = false;     // below max(floor, target / 4) of the range, and not yet at max_s
+  double next_s = 0;        // the next try's exposure, when either (clamped, on the ladder)
+};
+// One try at `t` whose brightest rectangle pixel is `peak_adu` above the dark, of `range_adu`
+// (linear limit - dark).
+ExposureJudgement JudgeExposure(const ExposurePolicy& x, double t, double peak_adu,
+                                double range_adu);
+
+// What the bench delivers, measured on a finished run that has a fit (Storage::LatestThroughput).
+struct Throughput {
+  std::int64_t run = 0;      // the run it comes from
+  double scale = 0;          // the fit's k: a stored value per unit of f |cos theta_l|
+  double floor = 0;          // the fit's constant floor b (stray light), stored value units
+  double adu_per_value = 0;  // rectangle-mean ADU per second per unit of stored value (median)
+  double dark_adu = 0;       // the dark's rectangle mean (median over the run's darks)
+};
+
+// A specimen's expected lobe at the bench's throughput.
+struct LobeForecast {
+  Throughput bench;
+  double alpha = 0;  // the specimen's expected Beckmann width
+  double eta = 1.5;
+  double linear_limit_adu = 65535;
+  int max_ranging_tries = 12;
+  // Expected rectangle ADU per second above dark at a transmission point, k f |cos theta_l| + b
+  // (the mean stands for the brightest pixel: for a rectangle small against the lobe they differ
+  // by its noise); 0 for reflection points, which it does not forecast.
+  double Rate(const PlannedPoint& p) const;
+};
+
+// The forecast for a specimen: nullopt without a throughput or without the specimen's expected
+// width (the catalogue's expected_alpha).
+std::optional<LobeForecast> ForecastFor(const Specimen& specimen,
+                                        const std::optional<Throughput>& bench,
+                                        double linear_limit_adu, int max_ranging_tries);
+
+// What an estimate was priced at, for the operator: "run N's exposures", "the expected lobe
+// (Beckmann alpha A) at run M's throughput" or "the plan's initial exposure".
+std::string DescribeEstimateBasis(const ExposureHistory* history, const LobeForecast* forecast);
+
+}  // namespace gonio::acquisition

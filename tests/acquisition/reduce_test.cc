@@ -1,0 +1,61 @@
+// The rectangle's noise estimates: pixel noise and the frames' common scatter, with and without a
+// drift of the lamp during the point (which the monitor normalisation removes, so it is not
+// noise).
+#include "acquisition/reduce.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+namespace gonio::acquisition {
+namespace {
+
+// `frames` frames of a 20 x 20 rectangle: level * (1 + drift * k + common_k) + pixel noise.
+RectAccumulator Accumulate(int frames, double level, double drift, double common_sd,
+                           double pixel_sd, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> unit(0, 1);
+  RectAccumulator acc(cv::Rect(5, 5, 20, 20), 65535);
+  for (int k = 0; k < frames; ++k) {
+    const double common = drift * k + common_sd * unit(rng);
+    cv::Mat1w f(30, 30);
+    for (int y = 0; y < f.rows; ++y)
+      for (int x = 0; x < f.cols; ++x)
+        f(y, x) = cv::saturate_cast<std::uint16_t>(level * (1 + common) + pixel_sd * unit(rng));
+    acc.Add(f);
+  }
+  return acc;
+}
+
+TEST(RectAccumulator, PixelNoiseIsEstimatedWithAndWithoutADrift) {
+  // 400 pixels x 7 differences: the estimate is within a few % of 25^2.
+  for (const double drift : {0.0, 0.02}) {
+    const auto acc = Accumulate(8, 20000, drift, 0, 25, 1);
+    EXPECT_NEAR(acc.PixelVariance(), 625, 0.1 * 625) << "drift " << drift;
+  }
+  // The drift is in the frames' spread about their mean: 2 % a frame over 8 frames is 0.049 of
+  // the level (980 ADU), far above the pixel noise's 1.25 ADU.
+  const auto drifting = Accumulate(8, 20000, 0.02, 0, 25, 1);
+  EXPECT_GT(drifting.FrameMeansSd(), 500);
+  // Successive differences see a constant step (400 ADU) as a variance of 400^2 / 2: a linear
+  // drift is not zero for them, but 6 times smaller than about the mean over 8 frames.
+  EXPECT_NEAR(drifting.FrameMeansVariance(), 400.0 * 400 / 2, 0.05 * 400 * 400 / 2);
+  EXPECT_LT(drifting.FrameMeansVariance(), 0.2 * std::pow(drifting.FrameMeansSd(), 2));
+  // A 5 % common fluctuation is not pixel noise either.
+  EXPECT_NEAR(Accumulate(8, 20000, 0, 0.05, 25, 2).PixelVariance(), 625, 0.1 * 625);
+}
+
+TEST(RectAccumulator, TheFramesCommonScatterIsFoundAbovePixelNoise) {
+  // 1 % common fluctuation (200 ADU) on 20000: many draws of 5 frames, pooled as the engine does.
+  double excess = 0, weight = 0;
+  for (unsigned seed = 0; seed < 400; ++seed) {
+    const auto acc = Accumulate(5, 20000, 0, 0.01, 25, seed);
+    excess += 4 * (acc.FrameMeansVariance() - acc.PixelVariance() / 400);
+    weight += 4;
+  }
+  EXPECT_NEAR(std::sqrt(excess / weight), 200, 0.05 * 200);
+}
+
+}  // namespace
+}  // namespace gonio::acquisition

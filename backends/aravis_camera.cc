@@ -12,6 +12,8 @@ namespace gonio::backends {
 
 namespace {
 
+constexpr guint64 kGevHeartbeatTimeout = 0x0938;  // GigE Vision bootstrap register, ms
+
 // Turns a GError into an Error (and frees it); nullptr: success.
 Status Check(GError* e, const std::string& what, ErrorCode code = ErrorCode::kIo) {
   if (e == nullptr) return OkStatus();
@@ -63,10 +65,11 @@ Result<std::unique_ptr<AravisCamera>> AravisCamera::Open(CameraSettings settings
   std::unique_ptr<AravisCamera> c(new AravisCamera());
   c->s_ = std::move(settings);
   // A controller that died without releasing the camera (a killed process) keeps its control
-  // privilege until the camera's heartbeat timeout (about 3 s for GigE Vision): until then
-  // writes time out. Keep trying for open_timeout_s.
-  const auto deadline =
-      std::chrono::steady_clock::now() + std::chrono::duration<double>(c->s_.open_timeout_s);
+  // privilege until the camera's heartbeat timeout, which that controller set (ours, from the
+  // same config: heartbeat_timeout_s; 3 s on a camera left as it came): until then writes time
+  // out. Keep trying for open_timeout_s, and at least that long and a little more.
+  const double wait_s = std::max(c->s_.open_timeout_s, c->s_.heartbeat_timeout_s + 3);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_s);
   for (;;) {
     Status s = c->Connect();
     if (s.ok()) return c;
@@ -89,7 +92,10 @@ void AravisCamera::Disconnect() {
   exposed_ = false;
   stream_owner_.reset();  // frames still held unref their buffers themselves
   stream_ = nullptr;
-  if (camera_ != nullptr) g_object_unref(camera_);
+  if (camera_ != nullptr) {
+    g_signal_handlers_disconnect_by_data(arv_camera_get_device(camera_), this);
+    g_object_unref(camera_);
+  }
   camera_ = nullptr;
 }
 
@@ -118,6 +124,20 @@ Status AravisCamera::ConnectSteps() {
   identity_ = std::string(vendor ? vendor : "?") + " " + (model ? model : "?") + " " +
               (serial ? serial : "?");
   if (Status s = Configure(); !s.ok()) return s;
+  if (arv_camera_is_gv_device(camera_)) {
+    // GigE Vision bootstrap register 0x0938, GevHeartbeatTimeout in ms (GigE Vision 2.0, table
+    // 28-1): a camera that misses our heartbeat for that long drops our control and stops
+    // streaming, which a loaded host has caused with the 3 s default (a clean-clone CI run).
+    ArvDevice* dev = arv_camera_get_device(camera_);
+    arv_device_write_register(dev, kGevHeartbeatTimeout,
+                              static_cast<guint32>(std::lround(s_.heartbeat_timeout_s * 1000)), &e);
+    if (Status s = Check(e, "camera " + s_.address + ": GevHeartbeatTimeout"); !s.ok()) return s;
+    control_lost_ = false;
+    g_signal_connect(dev, "control-lost", G_CALLBACK(+[](ArvGvDevice*, gpointer self) {
+                       static_cast<AravisCamera*>(self)->control_lost_ = true;
+                     }),
+                     this);
+  }
   stream_ = arv_camera_create_stream(camera_, nullptr, nullptr, &e);
   if (Status s = Check(e, "camera " + s_.address + ": stream"); !s.ok()) return s;
   stream_owner_ = std::shared_ptr<_ArvStream>(stream_, [](_ArvStream* st) { g_object_unref(st); });
@@ -246,6 +266,10 @@ Status AravisCamera::Trigger() {
   // After a reopen that failed there is no camera: not a pool without buffers (issue #18).
   if (camera_ == nullptr || stream_ == nullptr)
     return Error{ErrorCode::kNotConnected, "camera " + s_.address + " is not connected"};
+  // The camera dropped our control (a missed heartbeat): it sends nothing until we take it again.
+  if (control_lost_.exchange(false))
+    return Error{ErrorCode::kNotConnected,
+                 "camera " + s_.address + ": control lost (heartbeat missed); reopening"};
   // Stale frames (from before this call) go back to the pool unread.
   if (early_ != nullptr) arv_stream_push_buffer(stream_, early_);
   early_ = nullptr;
@@ -339,14 +363,21 @@ Error AravisCamera::Abandon() {
 }
 
 Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_problem) {
+  bool reopened = false;  // in this call: the frame says why
   for (int attempt = first_attempt; attempt <= first_attempt + s_.retries; ++attempt) {
     if (Interrupted()) return Abandon();
     if (Status t = Trigger(); !t.ok()) {
       if (t.error().code == ErrorCode::kBusy) return t.error();
-      // The camera no longer answers: reopen it once per attempt, then trigger again.
+      // The camera no longer answers, or dropped our control: reopen it once per attempt, then
+      // trigger again in the same attempt (a reopen on the last one would otherwise end it).
       *last_problem = t.error().message;
       if (Status s = Reopen(); !s.ok()) return s.error();
-      continue;
+      reopened = true;
+      if (Status again = Trigger(); !again.ok()) {
+        if (again.error().code == ErrorCode::kBusy) return again.error();
+        *last_problem = again.error().message;
+        continue;
+      }
     }
     const double wait_s = exposure_s_ + s_.frame_timeout_s;
     ArvBuffer* b = PopFrame(wait_s);
@@ -356,7 +387,7 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
       continue;
     }
     auto f = Wrap(b, attempt);
-    if (f.ok() && attempt > 1) f->retried_because = *last_problem;
+    if (f.ok() && (attempt > 1 || reopened)) f->retried_because = *last_problem;
     if (f.ok() || f.error().code != ErrorCode::kDeviceFault) return f;
     *last_problem = f.error().message;
   }

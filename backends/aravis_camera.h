@@ -78,7 +78,10 @@ class AravisCamera final : public Camera {
   _ArvCamera* camera_ = nullptr;
   _ArvStream* stream_ = nullptr;
   double exposure_s_ = 0.1;
-  std::atomic<int> reopens_{0};       // read by the engine's readout thread (Reconnections)
+  std::atomic<int> reopens_{0};  // read by the engine's readout thread (Reconnections)
+  // Set by Aravis's heartbeat thread when the camera no longer grants us control (it stops
+  // streaming then): the next trigger reopens at once instead of waiting out silent frames.
+  std::atomic<bool> control_lost_{false};
   bool reports_end_ = false;          // the status feature exists (Connect)
   devices::CameraCapabilities caps_;  // what the node map has of the config's features (Connect)
   bool exposed_ = false;         // Expose() has triggered a frame that Retrieve() has not taken

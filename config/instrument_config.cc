@@ -39,10 +39,10 @@ Status ReadFeatures(Reader& r, const toml::table& k, devices::VendorFeatures& f)
 
 // [camera]: address, format, region, buffers and retries, and its [camera.features].
 Status ReadCamera(Reader& r, const toml::table& t, InstrumentConfig& c) {
-  GONIO_TRY(r.Keys(
-      t, "camera",
-      {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning", "roi", "buffers",
-       "frame_timeout_s", "retries", "linear_limit_adu", "status_poll_s", "features"}));
+  GONIO_TRY(r.Keys(t, "camera",
+                   {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning",
+                    "roi", "buffers", "frame_timeout_s", "retries", "linear_limit_adu",
+                    "status_poll_s", "heartbeat_timeout_s", "features"}));
   devices::CameraSettings& s = c.camera;
   GONIO_TRY(r.Bool(t, "enabled", &c.camera_enabled));
   GONIO_TRY(r.Ipv4(t, "address", &s.address));
@@ -55,6 +55,7 @@ Status ReadCamera(Reader& r, const toml::table& t, InstrumentConfig& c) {
   GONIO_TRY(r.Number(t, "frame_timeout_s", &s.frame_timeout_s, 0.01, 600));
   GONIO_TRY(r.Number(t, "linear_limit_adu", &s.linear_limit_adu, 100, 65535));
   GONIO_TRY(r.Number(t, "status_poll_s", &s.status_poll_s, 1e-4, 1));
+  GONIO_TRY(r.Number(t, "heartbeat_timeout_s", &s.heartbeat_timeout_s, 0.5, 600));
   if (const toml::node* n = t.get("roi")) {
     const toml::array* a = n->as_array();
     if (a == nullptr || a->size() != 4 || !a->is_homogeneous<std::int64_t>())

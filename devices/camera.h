@@ -45,9 +45,15 @@ struct CameraSettings {
   int binning = 1;
   int roi_x = 0, roi_y = 0, roi_width = 0, roi_height = 0;  // 0 width/height: the full sensor
   int buffers = 4;
-  double frame_timeout_s = 5;    // beyond the exposure time
-  int retries = 2;               // failed or incomplete frames re-triggered, per Snap
-  double open_timeout_s = 10;    // keep trying to open (another controller's control may linger)
+  double frame_timeout_s = 5;  // beyond the exposure time
+  int retries = 2;             // failed or incomplete frames re-triggered, per Snap
+  // Keep trying to open (a dead controller's control lingers for its heartbeat timeout): at
+  // least heartbeat_timeout_s + 3 s.
+  double open_timeout_s = 10;
+  // GigE Vision: how long the camera keeps our control without hearing our heartbeat
+  // (GevHeartbeatTimeout). Past it the camera drops control and stops streaming; the default
+  // 3 s of cameras has been missed by a loaded host.
+  double heartbeat_timeout_s = 10;
   double status_poll_s = 0.001;  // how often Expose() reads whether the exposure has ended
   // Where the sensor stops being linear (full well), raw ADU: acquisition keeps pixels below.
   double linear_limit_adu = 65535;

@@ -92,9 +92,10 @@ Result<FaultEvent> ReadFaultEvent(Reader& r, const toml::node& item) {
   FaultEvent ev;
   std::string kind;
   if (e->get("kind") == nullptr) return r.Fail(&item, "fault event without 'kind'");
-  GONIO_TRY(r.String(*e, "kind", &kind,
-                     {"modbus_timeout", "modbus_crc", "modbus_drop", "axis_alarm", "axis_stall",
-                      "frame_drop", "frame_incomplete", "cooler_fail", "monitor_disconnect"}));
+  GONIO_TRY(r.String(
+      *e, "kind", &kind,
+      {"modbus_timeout", "modbus_crc", "modbus_drop", "axis_alarm", "axis_stall", "frame_drop",
+       "frame_incomplete", "cooler_fail", "monitor_disconnect", "control_lost"}));
   ev.kind = *FaultKindFromString(kind);
   GONIO_TRY(r.String(*e, "target", &ev.target, {"sample", "arm", "azimuth"}));
   GONIO_TRY(r.Integer(*e, "at_opportunity", &ev.at_opportunity, 1, INT64_MAX));

@@ -147,6 +147,10 @@ void SimulatedCamera::SetReg(std::uint32_t address, std::uint32_t value) {
   arv_fake_camera_write_register(fake_, address, value);
 }
 
+std::uint32_t SimulatedCamera::HeartbeatTimeoutMs() const {
+  return Reg(camera_reg::kHeartbeatTimeout);
+}
+
 void SimulatedCamera::DropFrames(int n) {
   std::lock_guard lock(mu_);
   drop_frames_ += n;
@@ -212,6 +216,10 @@ void SimulatedCamera::Step(double now) {
   const StageAngles angles = angles_ ? angles_() : StageAngles{};
   std::lock_guard lock(mu_);
   if (MaybeFire(faults_, FaultKind::kCoolerFail, "camera", now)) cooler_.SetFailed(true, now);
+  // GigE Vision: a camera whose controller missed its heartbeat clears the control channel
+  // privilege (bootstrap register CCP, 0x0A00) and stops streaming until control is taken again.
+  if (MaybeFire(faults_, FaultKind::kControlLost, "camera", now))
+    SetReg(kControlChannelPrivilege, 0);
   // Cooler: mode on write, setpoint on Activate (as Goldeye-style cameras apply it).
   const std::uint32_t mode = Reg(kCoolerMode);
   if (mode != cooler_mode_) {

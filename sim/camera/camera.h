@@ -44,16 +44,20 @@ namespace gonio::sim {
 namespace camera_reg {  // the firmware's registers (32-bit, big-endian)
 inline constexpr std::uint32_t kDeviceTemperature = 0x400;  // signed, milli-deg C (RO)
 inline constexpr std::uint32_t kTriggerMode = 0x404;        // 0 free running, 1 triggered
-inline constexpr std::uint32_t kTriggerSoftware = 0x408;    // write 1: start an exposure
-inline constexpr std::uint32_t kCoolerMode = 0x40c;         // 0 off, 1 on
-inline constexpr std::uint32_t kSetpoint = 0x410;           // signed, milli-deg C
-inline constexpr std::uint32_t kSetpointActivate = 0x414;   // write 1: apply kSetpoint
-inline constexpr std::uint32_t kCoolingPower = 0x418;       // milli-percent (RO)
-inline constexpr std::uint32_t kBlackLevel = 0x41c;         // ADU
-inline constexpr std::uint32_t kShutter = 0x428;            // 0 open, 1 closed (dark frames)
-inline constexpr std::uint32_t kExposureActive = 0x42c;     // 1 while integrating (RO)
-inline constexpr std::uint32_t kStatusSelector = 0x430;     // 6: ExposureActive (the only one)
-inline constexpr std::uint32_t kAcquisitionAbort = 0x434;   // write 1: drop the frame in hand
+// GigE Vision bootstrap registers (GigE Vision 2.0, section 28): the heartbeat timeout in ms
+// and the control channel privilege.
+inline constexpr std::uint32_t kHeartbeatTimeout = 0x0938;
+inline constexpr std::uint32_t kControlChannelPrivilege = 0x0A00;
+inline constexpr std::uint32_t kTriggerSoftware = 0x408;   // write 1: start an exposure
+inline constexpr std::uint32_t kCoolerMode = 0x40c;        // 0 off, 1 on
+inline constexpr std::uint32_t kSetpoint = 0x410;          // signed, milli-deg C
+inline constexpr std::uint32_t kSetpointActivate = 0x414;  // write 1: apply kSetpoint
+inline constexpr std::uint32_t kCoolingPower = 0x418;      // milli-percent (RO)
+inline constexpr std::uint32_t kBlackLevel = 0x41c;        // ADU
+inline constexpr std::uint32_t kShutter = 0x428;           // 0 open, 1 closed (dark frames)
+inline constexpr std::uint32_t kExposureActive = 0x42c;    // 1 while integrating (RO)
+inline constexpr std::uint32_t kStatusSelector = 0x430;    // 6: ExposureActive (the only one)
+inline constexpr std::uint32_t kAcquisitionAbort = 0x434;  // write 1: drop the frame in hand
 }  // namespace camera_reg
 
 // The genicam file installed beside the sources (compiled-in path; overridable).
@@ -92,6 +96,8 @@ class SimulatedCamera {
   // Fault injection (the fault plan): the next n exposures never leave the camera (the client
   // sees a frame timeout); the cooler stops cooling (the sensor drifts to ambient).
   void DropFrames(int n);
+  // GevHeartbeatTimeout as the client set it (bootstrap register 0x0938), in ms.
+  std::uint32_t HeartbeatTimeoutMs() const;
   void FailCooler(bool failed);
 
   double SensorTemperature() const;

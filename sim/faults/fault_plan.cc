@@ -6,7 +6,7 @@
 namespace gonio::sim {
 
 namespace {
-constexpr std::array<std::pair<FaultKind, std::string_view>, 9> kNames{{
+constexpr std::array<std::pair<FaultKind, std::string_view>, 10> kNames{{
     {FaultKind::kModbusTimeout, "modbus_timeout"},
     {FaultKind::kModbusCrc, "modbus_crc"},
     {FaultKind::kModbusDrop, "modbus_drop"},
@@ -16,6 +16,7 @@ constexpr std::array<std::pair<FaultKind, std::string_view>, 9> kNames{{
     {FaultKind::kFrameIncomplete, "frame_incomplete"},
     {FaultKind::kCoolerFail, "cooler_fail"},
     {FaultKind::kMonitorDisconnect, "monitor_disconnect"},
+    {FaultKind::kControlLost, "control_lost"},
 }};
 }  // namespace
 

@@ -30,6 +30,7 @@ enum class FaultKind {
   kFrameIncomplete,    // a frame leaves with GVSP packets lost
   kCoolerFail,         // the cooler stops; the sensor drifts to ambient
   kMonitorDisconnect,  // the power meter leaves the bus for `duration_s`
+  kControlLost,        // the camera drops its controller, as on a missed heartbeat (GigE Vision)
 };
 
 // The config's spelling: "modbus_timeout", "modbus_crc", ...

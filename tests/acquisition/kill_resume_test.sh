@@ -43,7 +43,7 @@ acq --db "$work/ref.sqlite" run "$work/plan.toml" > "$work/ref.log"
 total=$(q "$work/ref.sqlite" "select count(*) from plan_points")
 
 # The victim: killed at random moments, resumed each time. A resume first waits out the dead
-# process's hold on the camera (its GigE Vision heartbeat, ~3 s), then measures.
+# process's hold on the camera (the GigE Vision heartbeat timeout it set, 10 s), then measures.
 start "$work/kill.log" --db "$work/kill.sqlite" run "$work/plan.toml"
 kills=0
 for delay in 1.3 4.4 3.9 4.8; do

@@ -96,6 +96,7 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
   const double limit = o_.linear_limit_adu;
   const cv::Rect rect(plan.rectangle.x, plan.rectangle.y, plan.rectangle.width,
                       plan.rectangle.height);
+  const double spent_before = stats_.exposure_s;  // what this point takes, darks included
   double t = last_exposure_s_ > 0 ? last_exposure_s_ : OnLadder(x.initial_s);
   t = std::clamp(t, x.min_s, x.max_s);
   // Auto-ranging: the brightest rectangle pixel above dark goes to `target` of the linear range
@@ -172,6 +173,7 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
   auto temp = camera_.TemperatureC();
   if (!temp.ok()) return temp.error();
   e.m.temperature_c = *temp;
+  e.m.exposed_s = stats_.exposure_s - spent_before;
   return e;
 }
 
@@ -265,6 +267,7 @@ Result<Measurement> Engine::Retake(Exposed& e, const Error& why) {
   if (!f.ok()) return f.error();
   ++stats_.retaken_frames;
   stats_.exposure_s += e.m.exposure_s;
+  e.m.exposed_s += e.m.exposure_s;
   e.acc.Add(f->image);
   e.in_readout = false;
   if (monitor_ != nullptr) {

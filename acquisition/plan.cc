@@ -450,8 +450,9 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
     auto it = std::find_if(darks.begin(), darks.end(),
                            [&](const auto& d) { return std::abs(d.first - t) <= 1e-3 * t; });
     if (it != darks.end() && clock - it->second <= plan.darks.max_age_s) return;
-    expose(t, plan.darks.frames);
-    e.dark_exposure_s += plan.darks.frames * t;
+    const int frames = std::max(2, plan.darks.frames);  // the engine takes at least 2
+    expose(t, frames);
+    e.dark_exposure_s += frames * t;
     darks[it != darks.end() ? it->first : t] = clock;
   };
   StageTargets at{0, 180, 0};

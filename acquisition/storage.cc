@@ -88,6 +88,15 @@ ALTER TABLE measurements ADD COLUMN sigma_stat REAL;
 ALTER TABLE measurements ADD COLUMN sigma_lamp REAL;
 ALTER TABLE measurements ADD COLUMN sigma_monitor REAL;
 )sql",
+    // 5: the estimate made when the run was created (#17), and the exposure each point took
+    // (ranging tries, averaged frames, retakes and the darks it needed; bench seconds), so that
+    // a run shows what it was expected to cost beside what it cost. NULL for earlier rows.
+    R"sql(
+ALTER TABLE runs ADD COLUMN estimate_s REAL;
+ALTER TABLE runs ADD COLUMN estimate_exposure_s REAL;
+ALTER TABLE runs ADD COLUMN estimate_basis TEXT;
+ALTER TABLE measurements ADD COLUMN exposed_s REAL;
+)sql",
 };
 constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
 static_assert(kMigrationCount == kSchemaVersion);
@@ -288,7 +297,8 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id), "
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='done'), "
          "(SELECT count(*) FROM plan_points WHERE run_id=r.id AND status='skipped'), s.eta, "
-         "r.response "
+         "r.response, r.estimate_s, r.estimate_exposure_s, r.estimate_basis, "
+         "(SELECT sum(exposed_s) FROM measurements WHERE run_id=r.id) "
          "FROM runs r JOIN specimens s ON s.id=r.specimen_id WHERE r.id=?");
   q.Bind(1, run);
   if (q.Step() != SQLITE_ROW)
@@ -309,7 +319,18 @@ Result<RunInfo> Storage::GetRun(std::int64_t run) {
   i.points_skipped = static_cast<int>(q.I(7));
   i.specimen_eta = q.D(8);
   if (!q.Null(9)) i.response = q.T(9);
+  if (!q.Null(10) && !q.Null(11) && !q.Null(12))
+    i.estimate = RunEstimate{q.D(10), q.D(11), q.T(12)};
+  if (!q.Null(13)) i.exposed_s = q.D(13);
   return i;
+}
+
+Status Storage::SetRunEstimate(std::int64_t run, const RunEstimate& e) {
+  std::lock_guard guard(mu_);
+  Stmt u(db_, "UPDATE runs SET estimate_s=?, estimate_exposure_s=?, estimate_basis=? WHERE id=?");
+  u.Bind(1, e.total_s).Bind(2, e.exposure_s).Bind(3, e.basis).Bind(4, run);
+  if (u.Step() != SQLITE_DONE) return u.Fail("storing run " + std::to_string(run) + "'s estimate");
+  return OkStatus();
 }
 
 Result<std::vector<RunInfo>> Storage::ListRuns() {
@@ -378,7 +399,8 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
          "INSERT INTO measurements(run_id, idx, sample_read_deg, arm_read_deg, azimuth_read_deg, "
          "exposure_s, frames, temperature_c, monitor_w, rect_mean, rect_sd, pixel_var, "
          "rect_pixels, rect_saturated, dark_id, value, sigma, flags, ranging_tries, sigma_stat, "
-         "sigma_lamp, sigma_monitor) VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
+         "sigma_lamp, sigma_monitor, exposed_s) "
+         "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
   i.Bind(1, run).Bind(2, m.index).Bind(3, m.sample_read_deg).Bind(4, m.arm_read_deg);
   i.Bind(5, m.azimuth_read_deg).Bind(6, m.exposure_s).Bind(7, m.frames).Bind(8, m.temperature_c);
   i.Bind(9, m.monitor_w).Bind(10, m.rect_mean).Bind(11, m.rect_sd).Bind(12, m.pixel_var);
@@ -391,6 +413,7 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
   i.Bind(16, m.value);
   i.Bind(17, m.sigma).Bind(18, m.flags).Bind(19, m.ranging_tries);
   i.Bind(20, m.sigma_stat).Bind(21, m.sigma_lamp).Bind(22, m.sigma_monitor);
+  i.Bind(23, m.exposed_s);
   if (i.Step() != SQLITE_DONE)
     return fail(
         i.Fail("storing point " + std::to_string(m.index) + " of run " + std::to_string(run)));
@@ -410,7 +433,8 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
          "p.azimuth_deg, m.sample_read_deg, m.arm_read_deg, m.azimuth_read_deg, m.exposure_s, "
          "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
          "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries, "
-         "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor FROM measurements m JOIN plan_points "
+         "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor, m.exposed_s FROM measurements m "
+         "JOIN plan_points "
          "p ON p.run_id=m.run_id AND p.idx=m.idx "
          "WHERE m.run_id=? ORDER BY p.idx");
   q.Bind(1, run);
@@ -445,6 +469,7 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
     r.m.sigma_stat = q.Null(25) ? r.m.sigma : q.D(25);
     r.m.sigma_lamp = q.Null(26) ? 0 : q.D(26);
     r.m.sigma_monitor = q.Null(27) ? 0 : q.D(27);
+    r.m.exposed_s = q.Null(28) ? 0 : q.D(28);
     out.push_back(r);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading measurements");
@@ -575,6 +600,49 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
         << r.m.sigma_lamp << "," << r.m.sigma_monitor << "\n";
   }
   return OkStatus();
+}
+
+Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
+                                const std::vector<PlannedPoint>& points,
+                                const std::vector<devices::AxisSettings>& axes,
+                                double linear_limit_adu, int max_ranging_tries) {
+  auto history = db.LatestExposures(plan.specimen.name);
+  if (!history.ok()) return history.error();
+  const ExposureHistory* seen = *history ? &**history : nullptr;
+  std::optional<LobeForecast> forecast;
+  if (seen == nullptr) {
+    auto throughput = db.LatestThroughput();
+    if (!throughput.ok()) return throughput.error();
+    forecast = ForecastFor(plan.specimen, *throughput, linear_limit_adu, max_ranging_tries);
+  }
+  const LobeForecast* f = forecast ? &*forecast : nullptr;
+  EstimateParts parts;
+  RunEstimate e;
+  e.total_s = EstimateSeconds(plan, points, axes, plan.exposure.initial_s, seen, f, &parts);
+  e.exposure_s = parts.exposure_s;
+  e.basis = DescribeEstimateBasis(seen, f);
+  return e;
+}
+
+std::string DescribeExposureAgainstEstimate(const RunInfo& run) {
+  char buf[160];
+  std::string out;
+  if (run.exposed_s) {
+    std::snprintf(buf, sizeof buf, "exposure %.0f s", *run.exposed_s);
+    out = buf;
+  }
+  if (run.estimate) {
+    std::snprintf(buf, sizeof buf, "%sestimated %.0f s", out.empty() ? "exposure " : ", ",
+                  run.estimate->exposure_s);
+    out += buf;
+    if (run.exposed_s && run.estimate->exposure_s > 0) {
+      std::snprintf(buf, sizeof buf, " (%+.0f %%)",
+                    100 * (*run.exposed_s / run.estimate->exposure_s - 1));
+      out += buf;
+    }
+    out += " from " + run.estimate->basis;
+  }
+  return out;
 }
 
 }  // namespace gonio::acquisition

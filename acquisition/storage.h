@@ -22,7 +22,7 @@ struct sqlite3;
 
 namespace gonio::acquisition {
 
-inline constexpr int kSchemaVersion = 4;
+inline constexpr int kSchemaVersion = 5;
 
 // A run's status, stored as text ("planned", "running", ...) and turned into a string only where
 // it is stored or sent.
@@ -33,6 +33,13 @@ std::optional<RunStatus> ParseRunStatus(std::string_view text);
 inline bool Finished(RunStatus s) {
   return s == RunStatus::kDone || s == RunStatus::kAborted || s == RunStatus::kFailed;
 }
+
+// What a run was expected to cost when it was created (EstimateSeconds), in bench seconds.
+struct RunEstimate {
+  double total_s = 0;     // motion and exposure
+  double exposure_s = 0;  // of which exposure: frames, ranging tries, darks
+  std::string basis;      // DescribeEstimateBasis
+};
 
 struct RunInfo {
   std::int64_t id = 0;
@@ -45,6 +52,10 @@ struct RunInfo {
   // What rebuilds each point's instrument response (fitting::ResponseSetup as JSON), when the
   // bench's geometry was configured.
   std::optional<std::string> response;
+  std::optional<RunEstimate> estimate;  // made when it was created; none for older runs
+  // The exposure its measured points took (bench seconds: ranging, frames, retakes, darks);
+  // nullopt for points stored before schema 5.
+  std::optional<double> exposed_s;
 };
 
 // What happened to a run besides its points: pauses, suspensions, faults, aborts.
@@ -84,6 +95,9 @@ struct Measurement {
   double sigma_stat = 0, sigma_lamp = 0, sigma_monitor = 0;
   int flags = 0;  // kFlag*
   int ranging_tries = 0;
+  // Bench seconds of exposure the point took: its ranging tries, averaged frames, retakes and
+  // the darks taken for it.
+  double exposed_s = 0;
 };
 inline constexpr int kFlagAtMaxExposure = 1;  // underexposed even at the longest exposure
 
@@ -122,6 +136,7 @@ class Storage {
   Status AddEvent(std::int64_t run, const std::string& kind, const std::string& detail);
   Result<std::vector<RunEvent>> Events(std::int64_t run);  // oldest first
   Result<RunInfo> GetRun(std::int64_t run);
+  Status SetRunEstimate(std::int64_t run, const RunEstimate& e);
   // Every run, oldest first.
   Result<std::vector<RunInfo>> ListRuns();
   // The most recent run left running or paused (an interrupted one), if any.
@@ -172,5 +187,17 @@ class Storage {
   std::string path_;
   int version_ = 0;
 };
+
+// The estimate of a new run of `plan` (EstimateSeconds) on what `db` holds: the newest finished
+// run of its specimen, else its expected lobe at the bench's throughput, else its initial
+// exposure. linear_limit_adu and max_ranging_tries are the engine's (EngineOptions).
+Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
+                                const std::vector<PlannedPoint>& points,
+                                const std::vector<devices::AxisSettings>& axes,
+                                double linear_limit_adu, int max_ranging_tries);
+
+// "exposure 2136 s, estimated 2139 s (+0 %) from <basis>", or what of it is known ("" when
+// neither is): for run summaries and events.
+std::string DescribeExposureAgainstEstimate(const RunInfo& run);
 
 }  // namespace gonio::acquisition

@@ -81,6 +81,12 @@ json RunJson(const acquisition::RunInfo& r) {
          {"points_done", r.points_done},
          {"points_skipped", r.points_skipped}};
   o["monitor_reference_w"] = r.monitor_reference_w ? json(*r.monitor_reference_w) : json(nullptr);
+  // What the run was expected to cost and what its points took (issue #17).
+  o["estimate"] = r.estimate ? json{{"total_s", r.estimate->total_s},
+                                    {"exposure_s", r.estimate->exposure_s},
+                                    {"basis", r.estimate->basis}}
+                             : json(nullptr);
+  o["exposed_s"] = r.exposed_s ? json(*r.exposed_s) : json(nullptr);
   return o;
 }
 

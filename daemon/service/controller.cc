@@ -549,6 +549,13 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     }
     job.run = *run;
     SaveJob(job);  // a restart finds the run through its job
+    // What it is expected to cost, kept beside what it will cost (issue #17). An estimate that
+    // cannot be made does not stop the run.
+    const auto points = acquisition::ExpandPoints(*plan, context_);
+    if (auto e = acquisition::EstimateRun(db_, *plan, points, context_.axes,
+                                          o_.engine.linear_limit_adu, o_.engine.max_ranging_tries);
+        e.ok())
+      (void)db_.SetRunEstimate(*run, *e);
     if (!plan->rectangle_reason.empty())
       (void)db_.AddEvent(*run, "rectangle", plan->rectangle_reason);
   }
@@ -615,6 +622,8 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   }
   auto info = db_.GetRun(run);
   if (info.ok() && info->status == acquisition::RunStatus::kDone) {
+    if (const std::string cost = acquisition::DescribeExposureAgainstEstimate(*info); !cost.empty())
+      (void)db_.AddEvent(run, "bench_time", cost);
     if (!current_->fit.empty()) {
       const Job finished = *current_;
       lock.unlock();

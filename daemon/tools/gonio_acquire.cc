@@ -73,30 +73,22 @@ Result<std::optional<RunInfo>> RunToResume(Storage& store, std::int64_t run_id,
 // The plan's points, the skipped ones with their reasons, and the bench time it will take,
 // priced at the exposures the newest finished run of its specimen needed if there is one, else
 // at the specimen's expected lobe through the bench's throughput (issue #17).
-Status PrintPlanSummary(Storage& store, const std::string& plan_path, const Plan& plan,
-                        const std::vector<PlannedPoint>& points,
-                        const config::InstrumentConfig& cfg) {
+Result<RunEstimate> PrintPlanSummary(Storage& store, const std::string& plan_path, const Plan& plan,
+                                     const std::vector<PlannedPoint>& points,
+                                     const config::InstrumentConfig& cfg) {
   int skipped = 0;
   for (const auto& p : points) skipped += p.skipped;
-  auto history = store.LatestExposures(plan.specimen.name);
-  if (!history.ok()) return history.error();
-  const ExposureHistory* seen = *history ? &**history : nullptr;
-  auto throughput = store.LatestThroughput();
-  if (!throughput.ok()) return throughput.error();
-  const auto forecast = seen ? std::nullopt
-                             : ForecastFor(plan.specimen, *throughput, cfg.camera.linear_limit_adu,
-                                           EngineOptions{}.max_ranging_tries);
-  const LobeForecast* f = forecast ? &*forecast : nullptr;
-  const double estimate = EstimateSeconds(plan, points, cfg.axes, plan.exposure.initial_s, seen, f);
+  auto estimate = EstimateRun(store, plan, points, cfg.axes, cfg.camera.linear_limit_adu,
+                              EngineOptions{}.max_ranging_tries);
+  if (!estimate.ok()) return estimate.error();
   std::cout << "plan " << plan_path << ": " << plan.specimen.name << ", " << points.size() - skipped
-            << " points (" << skipped << " skipped), about " << Duration(estimate)
-            << " of bench time for motion and exposure (from " << DescribeEstimateBasis(seen, f)
-            << ")\n";
+            << " points (" << skipped << " skipped), about " << Duration(estimate->total_s)
+            << " of bench time for motion and exposure (from " << estimate->basis << ")\n";
   for (const auto& p : points)
     if (p.skipped)
       std::cout << "  skip theta_l " << p.theta_l_deg << " theta_v " << p.theta_v_deg << ": "
                 << p.reason << "\n";
-  return OkStatus();
+  return estimate;
 }
 
 // Measures the run to its end, or until a signal pauses it (exit 3).
@@ -170,6 +162,8 @@ int main(int argc, char** argv) {
     std::cout << "run " << info->id << " (" << info->specimen << "): " << ToString(info->status)
               << ", " << info->points_done << "/" << info->points_total - info->points_skipped
               << " points, " << info->points_skipped << " skipped\n";
+    if (const std::string cost = DescribeExposureAgainstEstimate(*info); !cost.empty())
+      std::cout << cost << "\n";
     return 0;
   }
   if (config_path.empty()) return Fail(InvalidArgument("run and resume need --config"));
@@ -201,9 +195,12 @@ int main(int argc, char** argv) {
   auto plan = *resume_cmd ? LoadPlanText(stored_plan, plan_file, ctx) : LoadPlan(plan_file, ctx);
   if (!plan.ok()) return Fail(plan.error());
   const auto points = ExpandPoints(*plan, ctx);
-  if (dry_run || *run_cmd)
-    if (Status st = PrintPlanSummary(store, plan_path, *plan, points, *cfg); !st.ok())
-      return Fail(st.error());
+  std::optional<RunEstimate> estimate;
+  if (dry_run || *run_cmd) {
+    auto e = PrintPlanSummary(store, plan_path, *plan, points, *cfg);
+    if (!e.ok()) return Fail(e.error());
+    estimate = *e;
+  }
   if (dry_run) return 0;
   if (*run_cmd) {
     std::ifstream file(config_path);
@@ -213,6 +210,8 @@ int main(int argc, char** argv) {
     if (!id.ok()) return Fail(id.error());
     run_id = *id;
     std::cout << "run " << run_id << " created in " << db_path << std::endl;
+    if (estimate)
+      if (Status st = store.SetRunEstimate(run_id, *estimate); !st.ok()) return Fail(st.error());
     if (!plan->rectangle_reason.empty()) {
       (void)store.AddEvent(run_id, "rectangle", plan->rectangle_reason);
       std::cout << plan->rectangle_reason << std::endl;

@@ -22,6 +22,7 @@
 
 #include <CLI/CLI.hpp>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -380,6 +381,18 @@ int Show(Ctl& ctl, std::int64_t id) {
   return ctl.Print(ctl.api().Get("/api/v1/runs/" + std::to_string(id)), [](const json& r) {
     std::cout << "run " << r["id"] << " (" << r.value("specimen", "")
               << "): " << r.value("status", "") << ", " << r["points_done"] << " points\n";
+    // What the run was expected to cost and what its points took (issue #17).
+    const bool exposed = r.contains("exposed_s") && r["exposed_s"].is_number();
+    const bool estimated = r.contains("estimate") && r["estimate"].is_object();
+    if (exposed) std::cout << "exposure " << std::lround(r["exposed_s"].get<double>()) << " s";
+    if (estimated) {
+      const json& e = r["estimate"];
+      std::cout << (exposed ? ", " : "exposure ") << "estimated "
+                << std::lround(e.value("exposure_s", 0.0)) << " s of "
+                << std::lround(e.value("total_s", 0.0)) << " s with motion, from "
+                << e.value("basis", std::string("?"));
+    }
+    if (exposed || estimated) std::cout << "\n";
     std::cout << "theta_l  theta_v   value          sigma       exposure_s\n";
     for (const json& m : r["measurements"])
       std::cout << std::setw(7) << m["theta_l_deg"].get<double>() << "  " << std::setw(7)

@@ -501,10 +501,15 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
   };
   auto measure = [&](gonio::testing::SimInstrument& inst, const Plan& plan,
                      const std::vector<PlannedPoint>& points) -> std::pair<std::int64_t, double> {
+    // As goniod does: the estimate is made and kept when the run is created.
+    auto estimate =
+        EstimateRun(*store, plan, points, inst.axes, eo.linear_limit_adu, eo.max_ranging_tries);
+    EXPECT_TRUE(estimate.ok());
     auto sp = store->EnsureSpecimen(plan.specimen);
     auto cfg = store->StoreConfig("test");
     auto run = store->CreateRun(*sp, *cfg, plan.text, points);
     EXPECT_TRUE(run.ok());
+    EXPECT_TRUE(store->SetRunEstimate(*run, *estimate).ok());
     Engine engine(*inst.stages, *inst.camera, inst.meter, *store, eo);
     std::atomic<bool> stop{false};
     const Status st = engine.Run(*run, plan, stop);
@@ -559,6 +564,15 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
       std::count_if(points.begin(), points.end(), [](const PlannedPoint& p) { return !p.skipped; });
   EXPECT_EQ(priced.from_forecast, measured_points);
   const auto [run, exposed_s] = measure(inst, plan, points);
+  // The run keeps its estimate beside what its points took, which adds up to the engine's count.
+  auto info = store->GetRun(run);
+  ASSERT_TRUE(info.ok());
+  ASSERT_TRUE(info->estimate && info->exposed_s);
+  EXPECT_EQ(info->estimate->basis,
+            "the expected lobe (Beckmann alpha 0.344) at run 1's throughput");
+  EXPECT_NEAR(info->estimate->exposure_s, priced.exposure_s, 1e-6 * priced.exposure_s);
+  EXPECT_NEAR(*info->exposed_s, exposed_s, 1e-6 * exposed_s);
+  std::printf("run summary: %s\n", DescribeExposureAgainstEstimate(*info).c_str());
   std::printf(
       "exposure time: measured %.0f s; forecast %.0f s (%+.0f %%, %d ranging frames, darks %.0f "
       "s); at the plan's initial exposure %.0f s (%+.0f %%)\n",

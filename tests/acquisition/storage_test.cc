@@ -50,9 +50,13 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   sqlite3* db = nullptr;
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
   // Back to version 1: without the jobs (2), the points' side (3), the runs' response and the
-  // points' budget (4).
+  // points' budget (4), the runs' estimate and the points' exposure (5).
   ASSERT_EQ(sqlite3_exec(db,
                          "DROP INDEX jobs_by_state; DROP TABLE jobs; "
+                         "ALTER TABLE runs DROP COLUMN estimate_s; "
+                         "ALTER TABLE runs DROP COLUMN estimate_exposure_s; "
+                         "ALTER TABLE runs DROP COLUMN estimate_basis; "
+                         "ALTER TABLE measurements DROP COLUMN exposed_s; "
                          "ALTER TABLE plan_points DROP COLUMN side; "
                          "ALTER TABLE runs DROP COLUMN response; "
                          "ALTER TABLE measurements DROP COLUMN sigma_stat; "
@@ -64,11 +68,16 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   sqlite3_close(db);
   auto s = Storage::Open(path);
   ASSERT_TRUE(s.ok()) << s.error().message;
-  EXPECT_EQ((*s)->schema_version(), 4);
+  EXPECT_EQ((*s)->schema_version(), 5);
   auto rows = (*s)->Measurements(run);
   ASSERT_TRUE(rows.ok());
   ASSERT_EQ(rows->size(), 1u);
   EXPECT_EQ((*rows)[0].m.value, 42);
+  // An older run has no estimate, and its points' exposure is unknown, not zero.
+  auto info = (*s)->GetRun(run);
+  ASSERT_TRUE(info.ok());
+  EXPECT_FALSE(info->estimate.has_value());
+  EXPECT_FALSE(info->exposed_s.has_value());
   EXPECT_FALSE((*rows)[0].point.reflection);  // the older runs were all transmission
   // The jobs table is back (the daemon's, daemon/service/job_store.h): a row goes in.
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);

@@ -258,6 +258,20 @@ TEST_F(DaemonApi, JobsRunInQueueOrderAndQueuedOnesCanBeMovedOrCancelled) {
   EXPECT_EQ(sr, 200);
   EXPECT_EQ(shown["status"], "done");
   EXPECT_EQ(shown["measurements"].size(), 10u);
+  // Its estimate, made when it was created (the first run's exposures: same specimen), beside
+  // the exposure its points took (issue #17), and the run's summary event saying both.
+  ASSERT_TRUE(shown["estimate"].is_object()) << shown.dump();
+  EXPECT_EQ(shown["estimate"]["basis"], "run " + std::to_string(run[first]) + "'s exposures");
+  ASSERT_TRUE(shown["exposed_s"].is_number());
+  double averaged_third = 0;
+  for (const json& m : shown["measurements"])
+    averaged_third += m["exposure_s"].get<double>() * 2;  // the plan's 2 frames, at least
+  EXPECT_GE(shown["exposed_s"].get<double>(), averaged_third);
+  auto events = store->Events(run[third]);
+  ASSERT_TRUE(events.ok());
+  EXPECT_TRUE(std::any_of(events->begin(), events->end(), [](const acquisition::RunEvent& e) {
+    return e.kind == "bench_time" && e.detail.find("estimated") != std::string::npos;
+  }));
   auto csv = client->Get("/api/v1/runs/" + std::to_string(run[third]) + "/csv");
   ASSERT_TRUE(csv);
   EXPECT_EQ(csv->status, 200);

@@ -1,11 +1,11 @@
 #include "acquisition/engine.h"
 
-#include "acquisition/exposure.h"
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <future>
+
+#include "acquisition/exposure.h"
 
 namespace gonio::acquisition {
 

@@ -1,12 +1,11 @@
 #include "acquisition/plan.h"
 
-#include "acquisition/exposure.h"
-
 #include <algorithm>
 #include <cmath>
 #include <map>
 #include <sstream>
 
+#include "acquisition/exposure.h"
 #include "config/toml_reader.h"
 #include "fitting/model.h"
 

@@ -151,6 +151,11 @@ std::uint32_t SimulatedCamera::HeartbeatTimeoutMs() const {
   return Reg(camera_reg::kHeartbeatTimeout);
 }
 
+void SimulatedCamera::DropControl() {
+  std::lock_guard lock(mu_);
+  SetReg(camera_reg::kControlChannelPrivilege, 0);
+}
+
 void SimulatedCamera::DropFrames(int n) {
   std::lock_guard lock(mu_);
   drop_frames_ += n;

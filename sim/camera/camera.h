@@ -96,6 +96,8 @@ class SimulatedCamera {
   // Fault injection (the fault plan): the next n exposures never leave the camera (the client
   // sees a frame timeout); the cooler stops cooling (the sensor drifts to ambient).
   void DropFrames(int n);
+  // Drops the controller now, as the fault plan's control_lost does (CCP cleared).
+  void DropControl();
   // GevHeartbeatTimeout as the client set it (bootstrap register 0x0938), in ms.
   std::uint32_t HeartbeatTimeoutMs() const;
   void FailCooler(bool failed);

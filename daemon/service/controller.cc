@@ -540,7 +540,8 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     return;
   }
   if (!job.run) {
-    auto run = db_.NewRun(*plan, o_.config_text, acquisition::ExpandPoints(*plan, context_),
+    const auto points = acquisition::ExpandPoints(*plan, context_);
+    auto run = db_.NewRun(*plan, o_.config_text, points,
                           o_.response_for ? o_.response_for(*plan) : std::string());
     if (!run.ok()) {
       FinishCurrent(JobState::kFailed, run.error().message);
@@ -551,7 +552,6 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     SaveJob(job);  // a restart finds the run through its job
     // What it is expected to cost, kept beside what it will cost (issue #17). An estimate that
     // cannot be made does not stop the run.
-    const auto points = acquisition::ExpandPoints(*plan, context_);
     if (auto e = acquisition::EstimateRun(db_, *plan, points, context_.axes,
                                           o_.engine.linear_limit_adu, o_.engine.max_ranging_tries);
         e.ok())

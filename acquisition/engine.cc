@@ -241,8 +241,11 @@ Result<Measurement> Engine::Complete(Exposed& e) {
                  std::string(camera && stages ? "the camera and the stages were"
                              : camera         ? "the camera was"
                                               : "the stages were") +
-                     " connected again while this point was measured (a device restarted?); it "
-                     "stays pending and is measured again"};
+                     " connected again while this point was measured (" +
+                     (camera && !camera_.LastReconnectionCause().empty()
+                          ? "the camera's cause: " + camera_.LastReconnectionCause()
+                          : std::string("a device restarted?")) +
+                     "); it stays pending and is measured again"};
   }
   if (e.in_readout) {
     auto f = camera_.Retrieve();
@@ -365,11 +368,17 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     }
     Measurement m;
     m.index = p.index;
-    const auto epoch = DeviceEpoch();
+    auto epoch = DeviceEpoch();
     Status moved = MoveTo(p, &m);  // while the previous point's last frame reads out
     moved_back = false;
     if (Status s = settle(&moved_back); !s.ok()) return s;
-    if (moved.ok() && moved_back) moved = MoveTo(p, &m);
+    // The previous point's retake may have opened the camera again: none of this point's frames
+    // were taken before it, so its epoch starts here (the stages' with the move back, if any).
+    epoch.first = DeviceEpoch().first;
+    if (moved.ok() && moved_back) {
+      epoch = DeviceEpoch();
+      moved = MoveTo(p, &m);
+    }
     if (!moved.ok()) return fault(p.index, moved.error());
     auto e = ExposePoint(p, plan, m);
     if (!e.ok()) return fault(p.index, e.error());

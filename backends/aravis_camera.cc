@@ -108,7 +108,7 @@ Status AravisCamera::Connect() {
 
 Status AravisCamera::EnsureConnected() {
   if (camera_ != nullptr && stream_ != nullptr) return OkStatus();
-  return Reopen();
+  return Reopen("it was not connected (an earlier reopen failed)");
 }
 
 Status AravisCamera::ConnectSteps() {
@@ -157,13 +157,22 @@ Status AravisCamera::ConnectSteps() {
   return OkStatus();
 }
 
-Status AravisCamera::Reopen() {
+Status AravisCamera::Reopen(const std::string& cause) {
+  {
+    std::lock_guard lock(cause_mu_);
+    reopen_cause_ = cause;
+  }
   Disconnect();
   if (Status s = Connect(); !s.ok())
     return Error{ErrorCode::kNotConnected,
                  "camera " + s_.address + " lost and not reopened: " + s.error().message};
   ++reopens_;
   return SetExposure(exposure_s_);
+}
+
+std::string AravisCamera::LastReconnectionCause() const {
+  std::lock_guard lock(cause_mu_);
+  return reopen_cause_;
 }
 
 Status AravisCamera::Configure() {
@@ -371,7 +380,7 @@ Result<Frame> AravisCamera::SnapOnce(int first_attempt, std::string* last_proble
       // The camera no longer answers, or dropped our control: reopen it once per attempt, then
       // trigger again in the same attempt (a reopen on the last one would otherwise end it).
       *last_problem = t.error().message;
-      if (Status s = Reopen(); !s.ok()) return s.error();
+      if (Status s = Reopen(t.error().message); !s.ok()) return s.error();
       reopened = true;
       if (Status again = Trigger(); !again.ok()) {
         if (again.error().code == ErrorCode::kBusy) return again.error();
@@ -403,7 +412,7 @@ Status AravisCamera::Expose() {
   // reopen.
   if (Status t = Trigger(); !t.ok()) {
     if (t.error().code == ErrorCode::kBusy) return t;
-    if (Status s = Reopen(); !s.ok()) return s;
+    if (Status s = Reopen(t.error().message); !s.ok()) return s;
     if (Status again = Trigger(); !again.ok()) return again;
   }
   exposed_ = true;
@@ -463,7 +472,7 @@ Result<Frame> AravisCamera::Snap() {
   const bool silent =
       !f.ok() && f.error().code == ErrorCode::kTimeout && problem.rfind("no frame", 0) == 0;
   if (silent) {
-    if (Status s = Reopen(); !s.ok()) return s.error();
+    if (Status s = Reopen("every attempt silent: " + problem); !s.ok()) return s.error();
     f = SnapOnce(s_.retries + 2, &problem);
     if (f.ok()) f->retried_because += " (every attempt; then reopened)";
   }

@@ -10,6 +10,8 @@
 
 #include <atomic>
 #include <memory>
+#include <mutex>
+#include <string>
 
 #include "devices/camera.h"
 
@@ -46,6 +48,7 @@ class AravisCamera final : public Camera {
 
   int reopens() const { return reopens_; }
   int Reconnections() const override { return reopens_; }
+  std::string LastReconnectionCause() const override;
 
  private:
   AravisCamera() = default;
@@ -54,7 +57,8 @@ class AravisCamera final : public Camera {
   // A camera lost earlier (a reopen that failed) is opened again before it is used.
   Status EnsureConnected();
   void Disconnect();
-  Status Reopen();  // Disconnect, Connect, restore the exposure; counts reopens_
+  // Disconnect, Connect, restore the exposure; counts reopens_ and keeps `cause` for the log.
+  Status Reopen(const std::string& cause);
   Status Configure();
   // This trigger's frame (any status but CLEARED) within wait_s, or null.
   _ArvBuffer* PopFrame(double wait_s);
@@ -79,6 +83,8 @@ class AravisCamera final : public Camera {
   _ArvStream* stream_ = nullptr;
   double exposure_s_ = 0.1;
   std::atomic<int> reopens_{0};  // read by the engine's readout thread (Reconnections)
+  mutable std::mutex cause_mu_;  // the cause is read from that thread too
+  std::string reopen_cause_;
   // Set by Aravis's heartbeat thread when the camera no longer grants us control (it stops
   // streaming then): the next trigger reopens at once instead of waiting out silent frames.
   std::atomic<bool> control_lost_{false};

@@ -141,6 +141,9 @@ class Camera {
   // How many times the camera has been opened again after it was lost (a power cycle): its
   // frames before and after a change of this count may not belong together.
   virtual int Reconnections() const { return 0; }
+  // Why the camera was last opened again ("no frame within 5.1 s", "control lost ..."); empty
+  // before the first. For the run's log: a reconnection that costs a point says what caused it.
+  virtual std::string LastReconnectionCause() const { return {}; }
 
   // Once *flag reads true, a Snap, Expose or Retrieve in progress (or begun) ends within about
   // 0.1 s with kAborted: the exposure is stopped (AcquisitionStop) and the camera left ready for

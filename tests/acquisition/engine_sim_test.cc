@@ -20,6 +20,7 @@
 #include "fitting/fitter.h"
 #include "fitting/samples_csv.h"
 #include "sim/truth/monte_carlo.h"
+#include "tests/support/run_resuming.h"
 #include "tests/support/sim_instrument.h"
 
 namespace gonio::acquisition {
@@ -95,7 +96,7 @@ class EngineOnSim : public ::testing::Test {
   // read failed.
   std::vector<MeasurementRow> RunToEnd(Engine& engine, const Plan& plan, std::int64_t run) {
     std::atomic<bool> stop{false};
-    const Status s = engine.Run(run, plan, stop);
+    const Status s = gonio::testing::RunResuming(engine, run, plan, stop);
     EXPECT_TRUE(s.ok()) << s.error().message;
     auto rows = store->Measurements(run);
     EXPECT_TRUE(rows.ok());
@@ -361,7 +362,7 @@ TEST_F(EngineDriftingLamp, MonitorNormalisationRemovesLampDrift) {
     Engine engine(*inst.stages, *inst.camera, monitor, *store,
                   EngineOptions{.linear_limit_adu = 65000});
     std::atomic<bool> stop{false};
-    EXPECT_TRUE(engine.Run(run, plan, stop).ok());
+    EXPECT_TRUE(gonio::testing::RunResuming(engine, run, plan, stop).ok());
     return run;
   };
   auto wait_sim = [&](double s) {
@@ -512,7 +513,7 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
     EXPECT_TRUE(store->SetRunEstimate(*run, *estimate).ok());
     Engine engine(*inst.stages, *inst.camera, inst.meter, *store, eo);
     std::atomic<bool> stop{false};
-    const Status st = engine.Run(*run, plan, stop);
+    const Status st = gonio::testing::RunResuming(engine, *run, plan, stop);
     EXPECT_TRUE(st.ok()) << st.error().message;
     std::printf("measured: %d ranging frames, darks %.0f s\n", engine.stats().ranging_frames,
                 engine.stats().dark_exposure_s);
@@ -612,7 +613,7 @@ TEST_P(EngineOnExplicitSurface, FitterRecoversThePredictedAlphaOrReportsAPoorFit
   Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
                 EngineOptions{.linear_limit_adu = 65000});
   std::atomic<bool> stop{false};
-  const Status st = engine.Run(run, plan, stop);
+  const Status st = gonio::testing::RunResuming(engine, run, plan, stop);
   ASSERT_TRUE(st.ok()) << st.error().message;
   const std::string csv = db_path + ".csv";
   ASSERT_TRUE(store->ExportCsv(run, csv).ok());

@@ -118,6 +118,10 @@ TEST_F(CameraDriver, TheHeartbeatTimeoutIsSetAndALostControlIsRetakenAtTheNextTr
   EXPECT_EQ(f->attempts, 1) << f->retried_because;
   EXPECT_NE(f->retried_because.find("control lost"), std::string::npos) << f->retried_because;
   EXPECT_EQ(cam->reopens(), 1);
+  // What a run's log says of the reconnection (the engine names it when it costs a point).
+  EXPECT_EQ(cam->LastReconnectionCause().empty(), false);
+  EXPECT_NE(cam->LastReconnectionCause().find("control lost"), std::string::npos)
+      << cam->LastReconnectionCause();
 }
 
 TEST_F(CameraDriver, FramesThatNeverComeGiveATimeoutAfterTheRetries) {

@@ -55,4 +55,20 @@ std::string DescribeEstimateBasis(const ExposureHistory* history, const LobeFore
   return "the plan's initial exposure";
 }
 
+RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points,
+                       const std::vector<devices::AxisSettings>& axes, const ExposureHistory* seen,
+                       const std::optional<Throughput>& bench, double linear_limit_adu,
+                       int max_ranging_tries) {
+  std::optional<LobeForecast> forecast;
+  if (seen == nullptr)
+    forecast = ForecastFor(plan.specimen, bench, linear_limit_adu, max_ranging_tries);
+  const LobeForecast* f = forecast ? &*forecast : nullptr;
+  EstimateParts parts;
+  RunEstimate e;
+  e.total_s = EstimateSeconds(plan, points, axes, plan.exposure.initial_s, seen, f, &parts);
+  e.exposure_s = parts.exposure_s;
+  e.basis = DescribeEstimateBasis(seen, f);
+  return e;
+}
+
 }  // namespace gonio::acquisition

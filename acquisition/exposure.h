@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "acquisition/plan.h"
 
@@ -61,5 +62,22 @@ std::optional<LobeForecast> ForecastFor(const Specimen& specimen,
 // What an estimate was priced at, for the operator: "run N's exposures", "the expected lobe
 // (Beckmann alpha A) at run M's throughput" or "the plan's initial exposure".
 std::string DescribeEstimateBasis(const ExposureHistory* history, const LobeForecast* forecast);
+
+// What a run was expected to cost when it was created (EstimateSeconds), in bench seconds.
+struct RunEstimate {
+  double total_s = 0;     // motion and exposure
+  double exposure_s = 0;  // of which exposure: frames, ranging tries, darks
+  std::string basis;      // DescribeEstimateBasis
+};
+
+// The estimate of a new run of `plan` on what is known, in this order: `seen`, the specimen's
+// newest finished run's exposures (null: none); else its expected lobe at `bench`, the bench's
+// throughput (ForecastFor); else the plan's initial exposure. linear_limit_adu and
+// max_ranging_tries are the engine's (EngineOptions). The one choice of basis behind a run's
+// stored estimate (Storage's EstimateRun) and a schedule's dry run.
+RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points,
+                       const std::vector<devices::AxisSettings>& axes, const ExposureHistory* seen,
+                       const std::optional<Throughput>& bench, double linear_limit_adu,
+                       int max_ranging_tries);
 
 }  // namespace gonio::acquisition

@@ -609,19 +609,13 @@ Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
   auto history = db.LatestExposures(plan.specimen.name);
   if (!history.ok()) return history.error();
   const ExposureHistory* seen = *history ? &**history : nullptr;
-  std::optional<LobeForecast> forecast;
-  if (seen == nullptr) {
+  std::optional<Throughput> bench;
+  if (seen == nullptr) {  // only then is it read
     auto throughput = db.LatestThroughput();
     if (!throughput.ok()) return throughput.error();
-    forecast = ForecastFor(plan.specimen, *throughput, linear_limit_adu, max_ranging_tries);
+    bench = *throughput;
   }
-  const LobeForecast* f = forecast ? &*forecast : nullptr;
-  EstimateParts parts;
-  RunEstimate e;
-  e.total_s = EstimateSeconds(plan, points, axes, plan.exposure.initial_s, seen, f, &parts);
-  e.exposure_s = parts.exposure_s;
-  e.basis = DescribeEstimateBasis(seen, f);
-  return e;
+  return EstimateOn(plan, points, axes, seen, bench, linear_limit_adu, max_ranging_tries);
 }
 
 std::string DescribeExposureAgainstEstimate(const RunInfo& run) {

@@ -34,13 +34,6 @@ inline bool Finished(RunStatus s) {
   return s == RunStatus::kDone || s == RunStatus::kAborted || s == RunStatus::kFailed;
 }
 
-// What a run was expected to cost when it was created (EstimateSeconds), in bench seconds.
-struct RunEstimate {
-  double total_s = 0;     // motion and exposure
-  double exposure_s = 0;  // of which exposure: frames, ranging tries, darks
-  std::string basis;      // DescribeEstimateBasis
-};
-
 struct RunInfo {
   std::int64_t id = 0;
   std::string specimen;
@@ -188,9 +181,8 @@ class Storage {
   int version_ = 0;
 };
 
-// The estimate of a new run of `plan` (EstimateSeconds) on what `db` holds: the newest finished
-// run of its specimen, else its expected lobe at the bench's throughput, else its initial
-// exposure. linear_limit_adu and max_ranging_tries are the engine's (EngineOptions).
+// The estimate of a new run of `plan` (EstimateOn) on what `db` holds: the newest finished run of
+// its specimen, else its expected lobe at the bench's throughput, else its initial exposure.
 Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
                                 const std::vector<PlannedPoint>& points,
                                 const std::vector<devices::AxisSettings>& axes,

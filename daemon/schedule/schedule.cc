@@ -75,15 +75,11 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
     const auto points = acquisition::ExpandPoints(*plan, context);
     for (const auto& p : points) (p.skipped ? e.skipped : e.points) += 1;
     const auto seen = basis.history ? basis.history(plan->specimen.name) : std::nullopt;
-    const auto forecast =
-        seen ? std::nullopt
-             : acquisition::ForecastFor(plan->specimen, basis.throughput, basis.linear_limit_adu,
-                                        basis.max_ranging_tries);
-    const acquisition::ExposureHistory* h = seen ? &*seen : nullptr;
-    const acquisition::LobeForecast* lobe = forecast ? &*forecast : nullptr;
-    e.estimate_s = acquisition::EstimateSeconds(*plan, points, context.axes,
-                                                plan->exposure.initial_s, h, lobe);
-    e.estimate_basis = acquisition::DescribeEstimateBasis(h, lobe);
+    const acquisition::RunEstimate estimate =
+        acquisition::EstimateOn(*plan, points, context.axes, seen ? &*seen : nullptr,
+                                basis.throughput, basis.linear_limit_adu, basis.max_ranging_tries);
+    e.estimate_s = estimate.total_s;
+    e.estimate_basis = estimate.basis;
     GONIO_TRY(r.Integer(*t, "repeat", &e.repeat, 1, 1000));
     if (const toml::node* s = t->get("start_at")) {
       std::string iso;

@@ -7,15 +7,20 @@
 //   gonio-acquire --db runs.sqlite status RUN
 //
 // Ctrl-C (SIGINT) or SIGTERM pauses after the current point is stored; resume continues it.
-// Exit codes: 0 done; 1 a device or storage error (the run is left paused); 2 bad input;
-// 3 paused by a signal.
+// A device fault that the drivers' own retries did not clear (a device restarted, a cable
+// pulled) pauses the run, which is tried again every --retry-s until it measures again, as goniod
+// does, for at most --give-up-s (0: stop at the first fault).
+// Exit codes: 0 done; 1 a device or storage error not cleared in time (the run is left paused);
+// 2 bad input; 3 paused by a signal.
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
 #include <sstream>
+#include <thread>
 
 #include "acquisition/engine.h"
 #include "acquisition/plan.h"
@@ -38,7 +43,9 @@ int Fail(const Error& e) {
 
 std::string Duration(double s) {
   char b[32];
-  if (s < 120) {
+  if (s < 10) {
+    std::snprintf(b, sizeof b, "%.1f s", s);
+  } else if (s < 120) {
     std::snprintf(b, sizeof b, "%.0f s", s);
   } else if (s < 7200) {
     std::snprintf(b, sizeof b, "%.1f min", s / 60);
@@ -91,20 +98,63 @@ Result<RunEstimate> PrintPlanSummary(Storage& store, const std::string& plan_pat
   return estimate;
 }
 
-// Measures the run to its end, or until a signal pauses it (exit 3).
+// How a device fault is waited out (goniod's suspenders: ControllerOptions).
+struct Retry {
+  double every_s = 2;
+  double give_up_s = 600;
+};
+
+double SteadyS() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+// Measures the run to its end, or until a signal pauses it (exit 3). A device fault pauses it and
+// it is resumed every retry.every_s; the outage is printed once (again if its message changes)
+// and its end once, when a point is stored.
 int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConfig& cfg,
-            std::int64_t run_id, const Plan& plan) {
+            std::int64_t run_id, const Plan& plan, const Retry& retry) {
   EngineOptions eo;
   eo.linear_limit_adu = cfg.camera.linear_limit_adu;
   Engine engine(*in.stages, *in.camera, in.monitor.monitor.get(), store, eo);
-  const Status s = engine.Run(run_id, plan, g_stop, [](const Progress& p) {
+  double outage_since = -1;  // steady seconds; < 0: none
+  std::string outage;        // the fault printed for it
+  const auto on_point = [&](const Progress& p) {
+    if (outage_since >= 0) {
+      std::printf("measuring again after %s (the device fault cleared)\n",
+                  Duration(SteadyS() - outage_since).c_str());
+      outage_since = -1;
+      outage.clear();
+    }
     std::printf(
         "[%4d/%d] theta_l %5.1f theta_v %6.1f  exposure %-9.4g s  value %.5g +- %.2g  ETA %s\n",
         p.done, p.total, p.point.theta_l_deg, p.point.theta_v_deg, p.last.exposure_s, p.last.value,
         p.last.sigma, Duration(p.eta_s).c_str());
     std::fflush(stdout);
-  });
-  if (!s.ok()) return Fail(s.error());
+  };
+  for (;;) {
+    const Status s = engine.Run(run_id, plan, g_stop, on_point);
+    if (s.ok()) break;
+    if (s.error().code == ErrorCode::kAborted || g_stop || retry.give_up_s <= 0)
+      return Fail(s.error());
+    const double now = SteadyS();
+    if (outage_since < 0) outage_since = now;
+    if (now - outage_since > retry.give_up_s) {
+      std::cerr << "gonio-acquire: the device fault did not clear within "
+                << Duration(retry.give_up_s) << " (--give-up-s); run " << run_id
+                << " is paused: gonio-acquire ... resume " << run_id << "\n";
+      return Fail(s.error());
+    }
+    if (s.error().message != outage) {
+      std::cout << "device fault, run " << run_id << " paused and tried again every "
+                << Duration(retry.every_s) << " for at most " << Duration(retry.give_up_s)
+                << " (--give-up-s): " << s.error().ToString() << std::endl;
+      outage = s.error().message;
+    }
+    // A signal during the wait pauses the run as it would mid-run (exit 3 below).
+    for (double waited = 0; waited < retry.every_s && !g_stop; waited += 0.05)
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    if (g_stop) break;
+  }
   auto info = store.GetRun(run_id);
   if (info.ok() && info->status == RunStatus::kPaused) {
     std::cout << "run " << run_id << " paused after " << info->points_done
@@ -136,6 +186,14 @@ int main(int argc, char** argv) {
   CLI::App* export_cmd = app.add_subcommand("export", "a run as the fitter's CSV");
   export_cmd->add_option("run", run_id)->required();
   export_cmd->add_option("--out", out)->required();
+  Retry retry;
+  app.add_option("--retry-s", retry.every_s,
+                 "after a device fault, resume the paused run this often (seconds)")
+      ->check(CLI::Range(0.1, 3600.0));
+  app.add_option("--give-up-s", retry.give_up_s,
+                 "stop (exit 1, the run paused) when a device fault has not cleared in this "
+                 "long; 0 stops at the first")
+      ->check(CLI::Range(0.0, 7.0 * 24 * 3600));
   CLI::App* status_cmd = app.add_subcommand("status", "a run's state");
   status_cmd->add_option("run", run_id)->required();
   try {
@@ -219,5 +277,5 @@ int main(int argc, char** argv) {
   } else {
     std::cout << "resuming run " << run_id << std::endl;
   }
-  return Measure(store, in, *cfg, run_id, *plan);
+  return Measure(store, in, *cfg, run_id, *plan, retry);
 }

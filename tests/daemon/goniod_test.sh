@@ -172,7 +172,9 @@ echo "restart resumed the run: $total/$total points, each once"
 # started again on its ports (its stages back at home). The point in hand when it went is
 # measured again (the engine sees the devices reconnected), the run continues by itself, and
 # every point agrees with the uninterrupted run.
-ctl submit "$work/plan.toml" > /dev/null
+# One incidence (5 points): its points are run 2's first five (the sweep starts the same way).
+sed 's/^incidence_deg = .*/incidence_deg = [0]/' "$work/plan.toml" > "$work/plan_one.toml"
+ctl submit "$work/plan_one.toml" > /dev/null
 wait_points 3 2
 stop_gonio_sim
 sleep 3
@@ -180,8 +182,11 @@ restart_gonio_sim "$sim" 5 "$work"
 ctl wait --timeout 180 > "$work/wait3.out" || fail "after the power cycle: $(cat "$work/wait3.out")"
 [[ "$(q "select status from runs where id=3")" == done ]] ||
   fail "run 3 after the power cycle: $(q "select status from runs where id=3")"
-[[ "$(q "select count(*), count(distinct idx) from measurements where run_id=3")" == "$total|$total" ]] ||
-  fail "run 3: $(q "select count(*), count(distinct idx) from measurements where run_id=3") of $total"
+[[ "$(q "select count(*), count(distinct idx) from measurements where run_id=3")" == "5|5" ]] ||
+  fail "run 3: $(q "select count(*), count(distinct idx) from measurements where run_id=3") of 5"
+[[ "$(q "select count(*) from measurements a join measurements b on a.idx = b.idx
+         where a.run_id = 3 and b.run_id = 2 and abs(a.arm_read_deg - b.arm_read_deg) < 0.01")" == 5 ]] ||
+  fail "run 3's points are not run 2's first five"
 bad=$(disagreeing 3 2)
 [[ "$bad" == 0 ]] || fail "$bad points measured across the power cycle disagree with run 2"
 echo "power cycle mid-run: run 3 completed by itself, every point once and as run 2 measured it"

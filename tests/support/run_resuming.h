@@ -8,22 +8,18 @@
 #include <atomic>
 #include <cstdint>
 #include <cstdio>
-#include <string>
-#include <vector>
 
 #include "acquisition/engine.h"
 
 namespace gonio::testing {
 
-// Up to `resumes` resumes; an interrupt (kAborted) is not resumed. Each fault is printed and kept
-// in *faults (when given) so that a test can bound them.
+// Up to `resumes` resumes; an interrupt (kAborted) is not resumed. Each fault is printed.
 inline Status RunResuming(acquisition::Engine& engine, std::int64_t run,
                           const acquisition::Plan& plan, const std::atomic<bool>& stop,
-                          std::vector<std::string>* faults = nullptr, int resumes = 2) {
+                          int resumes = 2) {
   Status s = engine.Run(run, plan, stop);
   for (int k = 0; k < resumes && !s.ok() && s.error().code != ErrorCode::kAborted; ++k) {
     std::printf("resumed after a device fault, as goniod does: %s\n", s.error().message.c_str());
-    if (faults != nullptr) faults->push_back(s.error().message);
     s = engine.Run(run, plan, stop);
   }
   return s;

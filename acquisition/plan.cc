@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "acquisition/exposure.h"
+#include "acquisition/strategy.h"
 #include "config/toml_reader.h"
 #include "fitting/model.h"
 
@@ -96,12 +97,66 @@ Result<Plan> Finish(Reader& r, const toml::table& root, const PlanContext& conte
 Result<Plan> AutoRectangleFrom(Reader& r, const toml::table& rect, const toml::table& root,
                                const PlanContext& context, Plan p);
 
+// [strategy] (plan.h, StrategyPolicy), or strategy = "name" for a kind with its defaults:
+// checked after [geometry], whose side it depends on.
+Status StrategyFrom(Reader& r, const toml::table& root, Plan* p) {
+  const toml::node* node = root.get("strategy");
+  if (node == nullptr) return OkStatus();
+  StrategyPolicy& s = p->strategy;
+  const toml::table* t = node->as_table();
+  static const toml::table kNone;
+  if (node->is_string()) {
+    s.kind = *node->value<std::string>();
+    if (s.kind != "uniform" && s.kind != "lobe" && s.kind != "adaptive")
+      return r.Fail(node, "strategy '" + s.kind + "' is not one of uniform, lobe, adaptive");
+    t = &kNone;
+  } else if (t == nullptr) {
+    return r.Fail(node, "strategy must be a name (\"lobe\") or a [strategy] table");
+  }
+  GONIO_TRY(r.Keys(*t, "strategy",
+                   {"kind", "lobe_fraction", "tail_every", "coarse_every", "coarse_frames",
+                    "coarse_max_s", "batch", "target_rel_sigma_alpha", "budget_s"}));
+  GONIO_TRY(r.String(*t, "kind", &s.kind, {"uniform", "lobe", "adaptive"}));
+  GONIO_TRY(r.Number(*t, "lobe_fraction", &s.lobe_fraction, 1e-6, 0.9));
+  GONIO_TRY(r.Integer(*t, "tail_every", &s.tail_every, 1, 1000));
+  GONIO_TRY(r.Integer(*t, "coarse_every", &s.coarse_every, 1, 1000));
+  GONIO_TRY(r.Integer(*t, "coarse_frames", &s.coarse_frames, 1, 1000));
+  GONIO_TRY(r.Number(*t, "coarse_max_s", &s.coarse_max_s, 1e-6, 3600));
+  GONIO_TRY(r.Integer(*t, "batch", &s.batch, 1, 1000));
+  GONIO_TRY(r.Number(*t, "target_rel_sigma_alpha", &s.target_rel_sigma_alpha, 1e-6, 1));
+  GONIO_TRY(r.Number(*t, "budget_s", &s.budget_s, 1, 1e8));
+  const toml::node* kind = t->get("kind") != nullptr ? t->get("kind") : node;
+  if (s.kind != "uniform" && p->side != "transmission")
+    return r.Fail(kind, "strategy '" + s.kind +
+                            "' is for transmission plans (its model is the transmitted lobe)");
+  if (s.kind == "lobe" && !p->specimen.expected_alpha)
+    return r.Fail(kind, "strategy 'lobe' needs the specimen's expected width: give '" +
+                            p->specimen.name + "' an expected_alpha in the specimen catalogue");
+  if (s.kind == "adaptive" && t->get("budget_s") == nullptr)
+    return r.Fail(kind,
+                  "strategy 'adaptive' needs budget_s, the bench seconds it may spend (a target "
+                  "alone might never be reached)");
+  for (const char* key : {"target_rel_sigma_alpha", "budget_s", "coarse_every", "coarse_frames",
+                          "coarse_max_s", "batch"})
+    if (s.kind != "adaptive" && t->get(key) != nullptr)
+      return r.Fail(t->get(key), std::string("'") + key +
+                                     "' is for kind = \"adaptive\" (this plan's kind is " + s.kind +
+                                     ")");
+  for (const char* key : {"lobe_fraction", "tail_every"})
+    if (s.kind != "lobe" && t->get(key) != nullptr)
+      return r.Fail(
+          t->get(key),
+          std::string("'") + key + "' is for kind = \"lobe\" (this plan's kind is " + s.kind + ")");
+  return OkStatus();
+}
+
 Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
                            const PlanContext& context) {
   Reader r(path);
   Plan p;
   p.path = path;
-  GONIO_TRY(r.Keys(root, "top level", {"sample", "geometry", "exposure", "darks", "rectangle"}));
+  GONIO_TRY(r.Keys(root, "top level",
+                   {"sample", "geometry", "exposure", "darks", "rectangle", "strategy"}));
 
   const toml::node* sample = root.get("sample");
   if (sample == nullptr) return r.Fail(nullptr, "the plan names no 'sample'");
@@ -170,6 +225,7 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
     GONIO_TRY(
         r.Number(*d, "max_temperature_change_c", &p.darks.max_temperature_change_c, 0.01, 20));
   }
+  GONIO_TRY(StrategyFrom(r, root, &p));
   const toml::table* rect = root["rectangle"].as_table();
   if (rect == nullptr)
     return r.Fail(nullptr,
@@ -229,7 +285,7 @@ Result<RectangleEffect> EffectOf(const Plan& p, const PlanContext& context, cons
     double theta_l, theta_v, point, averaged;
   };
   std::vector<Value> values;
-  for (const PlannedPoint& pt : ExpandPoints(p, context)) {
+  for (const PlannedPoint& pt : ExpandGrid(p, context)) {
     if (pt.skipped) continue;
     auto r = fitting::ComputeResponse(
         setup, {pt.stage.sample_deg, pt.stage.arm_deg, pt.stage.azimuth_deg}, 64);
@@ -370,6 +426,12 @@ Result<Plan> LoadPlanText(std::string_view text, const std::string& name,
 }
 
 std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& context) {
+  std::vector<PlannedPoint> points = ExpandGrid(plan, context);
+  SelectByStrategy(plan, &points);
+  return points;
+}
+
+std::vector<PlannedPoint> ExpandGrid(const Plan& plan, const PlanContext& context) {
   std::vector<double> views;
   const int n = static_cast<int>(
       std::floor((plan.view_to_deg - plan.view_from_deg) / plan.view_step_deg + 1e-9));

@@ -62,6 +62,28 @@ struct AutoRectangle {
   std::optional<int> centre_x, centre_y;  // image pixels; default: the image's centre
 };
 
+// How a run spends its bench time ([strategy] in a plan; acquisition/strategy.h, issue #17).
+//   uniform   every point of the grid, in order (the default);
+//   lobe      the grid's points where the specimen's expected lobe (Beckmann at the catalogue's
+//             width) is above `lobe_fraction` of its incidence's peak, and every `tail_every`-th
+//             view outside it (the tails pin the stray-light floor);
+//   adaptive  a coarse scan (every `coarse_every`-th view, `coarse_frames` frames of at most
+//             `coarse_max_s`: it only has to find the lobe), then points chosen in batches (of
+//             `batch`, or a quarter of the points so far when that is more)
+//             from the grid where they shrink the variance of alpha the most per bench second, at
+//             the provisional fit; it stops at `target_rel_sigma_alpha` or at `budget_s`.
+struct StrategyPolicy {
+  std::string kind = "uniform";
+  double lobe_fraction = 0.01;
+  int tail_every = 4;
+  int coarse_every = 4;
+  int coarse_frames = 1;
+  double coarse_max_s = 1;
+  int batch = 4;
+  double target_rel_sigma_alpha = 0;  // sigma(alpha) / alpha to stop at; 0: none
+  double budget_s = 0;                // bench seconds (exposures and moves) at most; 0: none
+};
+
 struct PlannedPoint {
   int index = 0;  // order of measurement
   double theta_l_deg = 0, theta_v_deg = 0, phi_deg = 0;
@@ -89,6 +111,7 @@ struct Plan {
   double arm_shadow_half_angle_deg = 4;
   ExposurePolicy exposure;
   DarkPolicy darks;
+  StrategyPolicy strategy;
   Rectangle rectangle;
   std::optional<AutoRectangle> auto_rectangle;  // when the plan chose it: how
   std::string rectangle_reason;                 // which rectangle, and why (auto only)
@@ -118,9 +141,13 @@ Result<Plan> LoadPlan(const std::string& path, const PlanContext& context);
 Result<Plan> LoadPlanText(std::string_view text, const std::string& name,
                           const PlanContext& context);
 
-// The points in measurement order: incidence by incidence (the sample axis moves least), the view
+// The grid in measurement order: incidence by incidence (the sample axis moves least), the view
 // sweep alternating direction (a serpentine: the arm never flies back), azimuths outermost.
 // Unreachable or occluded geometries come back with skipped = true and a reason.
+std::vector<PlannedPoint> ExpandGrid(const Plan& plan, const PlanContext& context);
+// The points a run starts with: the grid, with the points the plan's strategy leaves out (lobe:
+// outside the expected lobe; adaptive: off the coarse scan, candidates for later choices)
+// skipped with the strategy's reason (SelectByStrategy, strategy.h).
 std::vector<PlannedPoint> ExpandPoints(const Plan& plan, const PlanContext& context);
 
 // What an earlier run of the same specimen measured: each point's final exposure and how many

@@ -1,0 +1,80 @@
+// The instrument at the level of its stored points, for studies of strategies (issue #17):
+// bench/acquire_strategies charts bench time against alpha error over hundreds of simulated runs,
+// which the image-level simulator (sim/, a few seconds per point) cannot afford. Model no more
+// than the question needs: where a run spends its time and what each point's value and sigma are.
+//
+// What it keeps of the bench (sim/ defaults: sim/camera/sensor.h, sim/scene/bench.h):
+//   - the signal: electrons_per_s_per_value x (k f |cos theta_l|) per pixel (Beckmann), plus the
+//     stray light, in every one of the rectangle's `pixels`;
+//   - the engine's ranging (JudgeExposure on the rectangle's mean, from the previous point's
+//     exposure), its frames, and a dark set at each exposure not taken before;
+//   - the noise: shot, read and dark noise per pixel averaged over the rectangle and the frames,
+//     the lamp's flicker common to the rectangle, and the dark's own noise;
+//   - moves at the stages' speed (the largest axis move) plus settling, and each frame's readout
+//     but the last (read out during the next move).
+// What it leaves out: images, the rectangle's spread of directions and the apertures (the point
+// model: the strategies compare where time goes, not the measurement equation), saturation
+// beyond the ranging (it ranges below full well), dark drift, faults. The sigma it reports is
+// the true one: the engine's budget was shown honest on the image-level simulator (#16).
+#pragma once
+
+#include <cstdint>
+#include <random>
+
+#include "acquisition/plan.h"
+#include "acquisition/strategy.h"
+
+namespace gonio::acquisition {
+
+struct PointBenchOptions {
+  double alpha = 0.344, eta = 1.51, k = 1.0;  // the specimen's truth (Beckmann)
+  double electrons_per_s_per_value = 1000;    // per pixel, per unit of stored value
+  double stray_e_per_s = 2.0;                 // per pixel
+  double gain_e_per_adu = 1.5, read_noise_e = 8, dark_e_per_s = 0.5;
+  double full_well_e = 60000;
+  int pixels = 114;  // the demo's 6 x 19 rectangle
+  double flicker_rms = 0.002;
+  int dark_frames = 4;
+  double dark_max_age_s = 600;  // a dark set older than this (bench seconds) is taken again
+  double degrees_per_s = 10, settle_s = 0.1;
+  // A frame's readout (512 x 512 at 1 MHz): each ranging try and averaged frame waits for it,
+  // except the point's last, which reads out while the stages move on (the engine's overlap).
+  double readout_s = 0.262;
+  std::uint64_t seed = 1;
+};
+
+class PointBench {
+ public:
+  explicit PointBench(PointBenchOptions o) : o_(o), rng_(o.seed) {}
+
+  // Measures one point as the engine would under `exposure`: its value, sigma, final exposure and
+  // the bench seconds it took (ranging tries, frames, a dark set at a new exposure, the move).
+  // Ranging starts at `planned_s` when given (> 0), else at the previous point's exposure.
+  Observation Measure(const PlannedPoint& p, const ExposurePolicy& exposure, double planned_s = 0);
+  // The expected stored value (no noise): k f |cos theta_l| + stray / electrons_per_s_per_value.
+  double Truth(const PlannedPoint& p) const;
+  double spent_s() const { return spent_s_; }
+
+ private:
+  PointBenchOptions o_;
+  std::mt19937_64 rng_;
+  double last_exposure_s_ = 0;
+  double sample_deg_ = 0, arm_deg_ = 180;
+  std::vector<std::pair<double, double>> darks_;  // exposure, bench second it was taken at
+  double spent_s_ = 0;
+};
+
+// One run of `plan` on a point bench: the grid's points its strategy selects (SelectByStrategy),
+// measured in order, then for an adaptive plan its choices (RunAdaptive), and the fit of it all
+// (FitSeen). The plan's darks policy replaces the options'.
+struct SimulatedRun {
+  fitting::FitSummary fit;
+  double spent_s = 0;
+  double first_s = 0;  // of which the points the strategy selected first (adaptive: coarse scan)
+  int points = 0;
+  std::string stop;  // an adaptive run's outcome; empty otherwise
+};
+Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoint>& grid,
+                                 PointBenchOptions options);
+
+}  // namespace gonio::acquisition

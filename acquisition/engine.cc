@@ -6,6 +6,7 @@
 #include <future>
 
 #include "acquisition/exposure.h"
+#include "acquisition/strategy.h"
 
 namespace gonio::acquisition {
 
@@ -92,12 +93,16 @@ Status Engine::MoveTo(const PlannedPoint& p, Measurement* m) {
 
 Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& plan,
                                             Measurement m) {
-  const ExposurePolicy& x = plan.exposure;
+  // An adaptive plan's coarse scan is exposed short; the points it chose start at their planned
+  // exposure, so that ranging only checks it.
+  const ExposurePolicy x = ExposureFor(plan, p);
   const double limit = o_.linear_limit_adu;
   const cv::Rect rect(plan.rectangle.x, plan.rectangle.y, plan.rectangle.width,
                       plan.rectangle.height);
   const double spent_before = stats_.exposure_s;  // what this point takes, darks included
-  double t = last_exposure_s_ > 0 ? last_exposure_s_ : OnLadder(x.initial_s);
+  double t = p.planned_exposure_s   ? *p.planned_exposure_s
+             : last_exposure_s_ > 0 ? last_exposure_s_
+                                    : OnLadder(x.initial_s);
   t = std::clamp(t, x.min_s, x.max_s);
   // Auto-ranging: the brightest rectangle pixel above dark goes to `target` of the linear range
   // above dark; a pixel past `saturation` shortens the exposure, one below `floor` lengthens it.
@@ -359,40 +364,96 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
   };
 
   bool moved_back = false;
-  for (const PlannedPoint& p : *pending) {
-    if (stop) {
+  for (;;) {  // an adaptive run measures what it chose, then chooses again
+    for (const PlannedPoint& p : *pending) {
+      if (stop) {
+        if (Status s = settle(&moved_back); !s.ok()) return s;
+        (void)db_.AddEvent(run, "paused",
+                           "stopped by request before point " + std::to_string(p.index));
+        return db_.SetRunStatus(run, RunStatus::kPaused);
+      }
+      Measurement m;
+      m.index = p.index;
+      auto epoch = DeviceEpoch();
+      Status moved = MoveTo(p, &m);  // while the previous point's last frame reads out
+      moved_back = false;
       if (Status s = settle(&moved_back); !s.ok()) return s;
-      (void)db_.AddEvent(run, "paused",
-                         "stopped by request before point " + std::to_string(p.index));
-      return db_.SetRunStatus(run, RunStatus::kPaused);
+      // The previous point's retake may have opened the camera again: none of this point's frames
+      // were taken before it, so its epoch starts here (the stages' with the move back, if any).
+      epoch.first = DeviceEpoch().first;
+      if (moved.ok() && moved_back) {
+        epoch = DeviceEpoch();
+        moved = MoveTo(p, &m);
+      }
+      if (!moved.ok()) return fault(p.index, moved.error());
+      auto e = ExposePoint(p, plan, m);
+      if (!e.ok()) return fault(p.index, e.error());
+      tail.emplace(std::move(e).value());
+      tail->epoch = epoch;
+      const bool overlap = tail->in_readout;
+      tail_done = std::async(overlap ? std::launch::async : std::launch::deferred,
+                             [this, t = &*tail] { return Complete(*t); });
+      // Without a readout to overlap, the point is stored before anything moves.
+      if (!overlap)
+        if (Status s = settle(&moved_back); !s.ok()) return s;
     }
-    Measurement m;
-    m.index = p.index;
-    auto epoch = DeviceEpoch();
-    Status moved = MoveTo(p, &m);  // while the previous point's last frame reads out
-    moved_back = false;
     if (Status s = settle(&moved_back); !s.ok()) return s;
-    // The previous point's retake may have opened the camera again: none of this point's frames
-    // were taken before it, so its epoch starts here (the stages' with the move back, if any).
-    epoch.first = DeviceEpoch().first;
-    if (moved.ok() && moved_back) {
-      epoch = DeviceEpoch();
-      moved = MoveTo(p, &m);
-    }
-    if (!moved.ok()) return fault(p.index, moved.error());
-    auto e = ExposePoint(p, plan, m);
-    if (!e.ok()) return fault(p.index, e.error());
-    tail.emplace(std::move(e).value());
-    tail->epoch = epoch;
-    const bool overlap = tail->in_readout;
-    tail_done = std::async(overlap ? std::launch::async : std::launch::deferred,
-                           [this, t = &*tail] { return Complete(*t); });
-    // Without a readout to overlap, the point is stored before anything moves.
-    if (!overlap)
-      if (Status s = settle(&moved_back); !s.ok()) return s;
+    if (plan.strategy.kind != "adaptive") break;
+    auto chosen = ChooseMore(run, plan);
+    if (!chosen.ok()) return chosen.error();  // storage: the run stays as it was, to resume
+    if (*chosen == 0) break;
+    pr.total += *chosen;
+    pending = db_.Points(run, /*pending_only=*/true);
+    if (!pending.ok()) return pending.error();
   }
-  if (Status s = settle(&moved_back); !s.ok()) return s;
   return db_.SetRunStatus(run, RunStatus::kDone);
+}
+
+Result<int> Engine::ChooseMore(std::int64_t run, const Plan& plan) {
+  // A run killed after deciding to stop and before it was marked done has decided already.
+  auto events = db_.Events(run);
+  if (!events.ok()) return events.error();
+  for (const RunEvent& e : *events)
+    if (e.kind == "adaptive") return 0;
+  auto rows = db_.Measurements(run);
+  if (!rows.ok()) return rows.error();
+  auto all = db_.Points(run, /*pending_only=*/false);
+  if (!all.ok()) return all.error();
+  // What the run has seen, in the order it was measured, each point's cost its exposures (stored
+  // exposed_s) and its move from the point before.
+  std::vector<Observation> seen;
+  StageTargets at{0, 180, 0};
+  for (const MeasurementRow& r : *rows) {
+    Observation o;
+    o.point = r.point;
+    o.value = r.m.value;
+    o.sigma = r.m.sigma;
+    o.exposure_s = r.m.exposure_s;
+    o.frames = r.m.frames;
+    const double dark = r.dark_rect_mean.value_or(0);
+    o.level = (r.m.rect_mean - dark) / std::max(1.0, o_.linear_limit_adu - dark);
+    o.cost_s = r.m.exposed_s + MoveSeconds(o_.axes, at, r.point.stage);
+    at = r.point.stage;
+    seen.push_back(o);
+  }
+  std::vector<PlannedPoint> candidates;
+  for (const PlannedPoint& p : *all)
+    if (p.skipped && p.reason == kCandidateReason) candidates.push_back(p);
+  auto step = NextAdaptiveStep(plan, candidates, seen);
+  if (!step.ok()) {  // the planner cannot go on (a fit that fails): the run ends with what it has
+    (void)db_.AddEvent(run, "adaptive", "stopped early: " + step.error().message);
+    return 0;
+  }
+  if (step->stop) {
+    (void)db_.AddEvent(run, "adaptive", step->stop->message);
+    return 0;
+  }
+  std::vector<PlannedPoint> points;
+  std::vector<std::string> reasons;
+  for (const Choice& c : step->batch) points.push_back(c.point), reasons.push_back(c.Reason());
+  auto added = db_.AddChosenPoints(run, points, reasons);
+  if (!added.ok()) return added.error();
+  return static_cast<int>(added->size());
 }
 
 }  // namespace gonio::acquisition

@@ -53,6 +53,9 @@ inline constexpr double kMonitorUnitW = 1e-3;  // values are per mW at the monit
 struct EngineOptions {
   double linear_limit_adu = 65535;  // the sensor's linear range (full well), raw ADU
   int max_ranging_tries = 12;
+  // The stages' speeds (the configuration's axes), to price an adaptive run's moves against its
+  // budget; empty: moves cost nothing.
+  std::vector<devices::AxisSettings> axes = {};
 };
 
 // What the engine spent its time on (for the efficiency benchmark and logs).
@@ -125,6 +128,10 @@ class Engine {
   Result<Measurement> Reduce(const Exposed& e);
   Result<const DarkRecord*> DarkFor(double exposure_s, const Plan& plan);
   Result<double> MonitorW();
+  // An adaptive run's next decision (strategy.h), from what it has stored: the points chosen are
+  // added to the run as pending, each with a 'chosen' event; or, when it stops, an 'adaptive'
+  // event says why. Returns how many points were added (0: the run is complete).
+  Result<int> ChooseMore(std::int64_t run, const Plan& plan);
 
   devices::StageController& stages_;
   devices::Camera& camera_;

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "acquisition/strategy.h"
 #include "fitting/model.h"
 #include "fitting/sample.h"
 
@@ -65,9 +66,21 @@ RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points
   const LobeForecast* f = forecast ? &*forecast : nullptr;
   EstimateParts parts;
   RunEstimate e;
-  e.total_s = EstimateSeconds(plan, points, axes, plan.exposure.initial_s, seen, f, &parts);
+  // An adaptive plan's points are its coarse scan, exposed short; what it chooses after is
+  // bounded by its budget (which counts the coarse scan too).
+  Plan priced = plan;
+  priced.exposure = CoarseExposure(plan);
+  e.total_s = EstimateSeconds(priced, points, axes, priced.exposure.initial_s, seen, f, &parts);
   e.exposure_s = parts.exposure_s;
   e.basis = DescribeEstimateBasis(seen, f);
+  if (plan.strategy.kind == "adaptive" && plan.strategy.budget_s > e.total_s) {
+    char text[96];
+    std::snprintf(text, sizeof text, "; adaptive: a %.0f s coarse scan, then at most its budget",
+                  e.total_s);
+    e.basis += text;
+    e.exposure_s += plan.strategy.budget_s - e.total_s;
+    e.total_s = plan.strategy.budget_s;
+  }
   return e;
 }
 

@@ -476,6 +476,20 @@ std::vector<PlannedPoint> ExpandGrid(const Plan& plan, const PlanContext& contex
   return out;
 }
 
+double MoveSeconds(const std::vector<devices::AxisSettings>& axes, const StageTargets& from,
+                   const StageTargets& to) {
+  // A trapezoid per axis: distance / speed + speed / acceleration; axes move together.
+  auto move_s = [&](const std::string& name, double a0, double a1) {
+    const devices::AxisSettings* a = Axis(axes, name);
+    if (a == nullptr || a0 == a1) return 0.0;
+    const double d = std::abs(a1 - a0), v = a->speed_deg_s, acc = a->acceleration_deg_s2;
+    return d >= v * v / acc ? d / v + v / acc : 2 * std::sqrt(d / acc);
+  };
+  return std::max({move_s("sample", from.sample_deg, to.sample_deg),
+                   move_s("arm", from.arm_deg, to.arm_deg),
+                   move_s("azimuth", from.azimuth_deg, to.azimuth_deg)});
+}
+
 std::optional<ExposureHistory::Entry> ExposureHistory::Near(const PlannedPoint& p) const {
   std::optional<Entry> best;
   for (const Entry& e : entries) {
@@ -493,13 +507,6 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
                        const std::vector<devices::AxisSettings>& axes, double typical_exposure_s,
                        const ExposureHistory* history, const LobeForecast* forecast,
                        EstimateParts* parts) {
-  // A trapezoid per axis: distance / speed + speed / acceleration; axes move together.
-  auto move_s = [&](const std::string& name, double from, double to) {
-    const devices::AxisSettings* a = Axis(axes, name);
-    if (a == nullptr || from == to) return 0.0;
-    const double d = std::abs(to - from), v = a->speed_deg_s, acc = a->acceleration_deg_s2;
-    return d >= v * v / acc ? d / v + v / acc : 2 * std::sqrt(d / acc);
-  };
   EstimateParts e;
   double clock = 0;  // bench time so far, for the darks' age
   auto expose = [&](double t, int n) {
@@ -520,9 +527,7 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
   double last_s = 0;  // the engine starts each point at the previous point's exposure
   for (const PlannedPoint& p : points) {
     if (p.skipped) continue;
-    const double move = std::max({move_s("sample", at.sample_deg, p.stage.sample_deg),
-                                  move_s("arm", at.arm_deg, p.stage.arm_deg),
-                                  move_s("azimuth", at.azimuth_deg, p.stage.azimuth_deg)});
+    const double move = MoveSeconds(axes, at, p.stage);
     e.motion_s += move;
     clock += move;
     at = p.stage;

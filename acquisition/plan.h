@@ -93,6 +93,10 @@ struct PlannedPoint {
   StageTargets stage;  // sample, arm, azimuth (deg)
   bool skipped = false;
   std::string reason;  // why it is skipped
+  // Points an adaptive run chose (strategy.h): the exposure planned for them (the engine's first
+  // try) and the bench seconds predicted for them; nullopt and 0 for the points a plan set out.
+  std::optional<double> planned_exposure_s;
+  double predicted_s = 0;
 };
 
 struct Plan {
@@ -165,6 +169,11 @@ struct ExposureHistory {
   // azimuth (within 1 deg); nullopt where the earlier run did not measure that incidence.
   std::optional<Entry> Near(const PlannedPoint& p) const;
 };
+
+// Seconds the stages take from one position to the next: a trapezoid per axis at its configured
+// speed and acceleration, all axes together (the slowest decides); axes not in `axes`: none.
+double MoveSeconds(const std::vector<devices::AxisSettings>& axes, const StageTargets& from,
+                   const StageTargets& to);
 
 struct LobeForecast;  // exposure.h
 

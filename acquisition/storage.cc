@@ -97,6 +97,13 @@ ALTER TABLE runs ADD COLUMN estimate_exposure_s REAL;
 ALTER TABLE runs ADD COLUMN estimate_basis TEXT;
 ALTER TABLE measurements ADD COLUMN exposed_s REAL;
 )sql",
+    // 6: adaptive runs (#17): the points a run chose as it went carry the exposure planned for
+    // them (the engine's first try) and the bench seconds predicted for them, against which the
+    // run checks its budget. NULL for the points a plan set out.
+    R"sql(
+ALTER TABLE plan_points ADD COLUMN planned_exposure_s REAL;
+ALTER TABLE plan_points ADD COLUMN predicted_s REAL;
+)sql",
 };
 constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
 static_assert(kMigrationCount == kSchemaVersion);
@@ -203,18 +210,55 @@ Result<std::int64_t> Storage::CreateRun(std::int64_t specimen_id, std::int64_t c
     run.Bind(4, response);
   if (run.Step() != SQLITE_DONE) return fail(run.Fail("creating the run"));
   const std::int64_t id = sqlite3_last_insert_rowid(db_);
-  for (const PlannedPoint& p : points) {
-    Stmt pt(db_,
-            "INSERT INTO plan_points(run_id, idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, "
-            "arm_deg, azimuth_deg, status, reason, side) VALUES(?,?,?,?,?,?,?,?,?,?,?)");
-    pt.Bind(1, id).Bind(2, p.index).Bind(3, p.theta_l_deg).Bind(4, p.theta_v_deg);
-    pt.Bind(5, p.phi_deg).Bind(6, p.stage.sample_deg).Bind(7, p.stage.arm_deg);
-    pt.Bind(8, p.stage.azimuth_deg).Bind(9, std::string(p.skipped ? "skipped" : "pending"));
-    pt.Bind(10, p.reason).Bind(11, std::string(p.reflection ? "reflection" : "transmission"));
-    if (pt.Step() != SQLITE_DONE) return fail(pt.Fail("storing plan point"));
-  }
+  for (const PlannedPoint& p : points)
+    if (Status s = InsertPoint(id, p); !s.ok()) return fail(s.error());
   if (Status s = Exec("COMMIT"); !s.ok()) return fail(s.error());
   return id;
+}
+
+Status Storage::InsertPoint(std::int64_t run, const PlannedPoint& p) {
+  Stmt pt(db_,
+          "INSERT INTO plan_points(run_id, idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, "
+          "arm_deg, azimuth_deg, status, reason, side, planned_exposure_s, predicted_s) "
+          "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?)");
+  pt.Bind(1, run).Bind(2, p.index).Bind(3, p.theta_l_deg).Bind(4, p.theta_v_deg);
+  pt.Bind(5, p.phi_deg).Bind(6, p.stage.sample_deg).Bind(7, p.stage.arm_deg);
+  pt.Bind(8, p.stage.azimuth_deg).Bind(9, std::string(p.skipped ? "skipped" : "pending"));
+  pt.Bind(10, p.reason).Bind(11, std::string(p.reflection ? "reflection" : "transmission"));
+  pt.Bind(12, p.planned_exposure_s);
+  pt.Bind(13, p.predicted_s > 0 ? std::optional<double>(p.predicted_s) : std::nullopt);
+  if (pt.Step() != SQLITE_DONE) return pt.Fail("storing plan point " + std::to_string(p.index));
+  return OkStatus();
+}
+
+Result<std::vector<int>> Storage::AddChosenPoints(std::int64_t run,
+                                                  std::vector<PlannedPoint> points,
+                                                  const std::vector<std::string>& reasons) {
+  std::lock_guard guard(mu_);
+  if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s.error();
+  auto fail = [&](const Error& e) -> Error {
+    (void)Exec("ROLLBACK");
+    return e;
+  };
+  Stmt q(db_, "SELECT coalesce(max(idx), -1) FROM plan_points WHERE run_id=?");
+  q.Bind(1, run);
+  if (q.Step() != SQLITE_ROW) return fail(q.Fail("numbering the chosen points"));
+  int next = static_cast<int>(q.I(0)) + 1;
+  std::vector<int> indices;
+  for (std::size_t k = 0; k < points.size(); ++k) {
+    PlannedPoint& p = points[k];
+    p.index = next++;
+    p.skipped = false;
+    p.reason.clear();
+    if (Status s = InsertPoint(run, p); !s.ok()) return fail(s.error());
+    Stmt e(db_, "INSERT INTO run_events(run_id, kind, detail) VALUES(?,'chosen',?)");
+    e.Bind(1, run).Bind(2, "point " + std::to_string(p.index) + ": " +
+                               (k < reasons.size() ? reasons[k] : std::string()));
+    if (e.Step() != SQLITE_DONE) return fail(e.Fail("storing a choice"));
+    indices.push_back(p.index);
+  }
+  if (Status s = Exec("COMMIT"); !s.ok()) return fail(s.error());
+  return indices;
 }
 
 Result<std::int64_t> Storage::NewRun(const Plan& plan, const std::string& config_text,
@@ -362,13 +406,13 @@ Result<std::optional<std::int64_t>> Storage::UnfinishedRun() {
 
 Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending_only) {
   std::lock_guard guard(mu_);
-  Stmt q(db_,
-         pending_only
-             ? "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
-               "azimuth_deg, status, reason, side FROM plan_points WHERE run_id=? AND "
-               "status='pending' ORDER BY idx"
-             : "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
-               "azimuth_deg, status, reason, side FROM plan_points WHERE run_id=? ORDER BY idx");
+  Stmt q(db_, pending_only
+                  ? "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
+                    "azimuth_deg, status, reason, side, planned_exposure_s, predicted_s FROM "
+                    "plan_points WHERE run_id=? AND status='pending' ORDER BY idx"
+                  : "SELECT idx, theta_l_deg, theta_v_deg, phi_deg, sample_deg, arm_deg, "
+                    "azimuth_deg, status, reason, side, planned_exposure_s, predicted_s FROM "
+                    "plan_points WHERE run_id=? ORDER BY idx");
   q.Bind(1, run);
   std::vector<PlannedPoint> out;
   int rc;
@@ -382,6 +426,8 @@ Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending
     p.skipped = q.T(7) == "skipped";
     p.reason = q.T(8);
     p.reflection = q.T(9) == "reflection";
+    if (!q.Null(10)) p.planned_exposure_s = q.D(10);
+    p.predicted_s = q.Null(11) ? 0 : q.D(11);
     out.push_back(p);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading plan points");
@@ -433,9 +479,10 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
          "p.azimuth_deg, m.sample_read_deg, m.arm_read_deg, m.azimuth_read_deg, m.exposure_s, "
          "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
          "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries, "
-         "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor, m.exposed_s FROM measurements m "
-         "JOIN plan_points "
-         "p ON p.run_id=m.run_id AND p.idx=m.idx "
+         "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor, m.exposed_s, p.planned_exposure_s, "
+         "p.predicted_s, d.rect_mean FROM measurements m "
+         "JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
+         "LEFT JOIN darks d ON d.id=m.dark_id "
          "WHERE m.run_id=? ORDER BY p.idx");
   q.Bind(1, run);
   std::vector<MeasurementRow> out;
@@ -470,6 +517,9 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
     r.m.sigma_lamp = q.Null(26) ? 0 : q.D(26);
     r.m.sigma_monitor = q.Null(27) ? 0 : q.D(27);
     r.m.exposed_s = q.Null(28) ? 0 : q.D(28);
+    if (!q.Null(29)) r.point.planned_exposure_s = q.D(29);
+    r.point.predicted_s = q.Null(30) ? 0 : q.D(30);
+    if (!q.Null(31)) r.dark_rect_mean = q.D(31);
     out.push_back(r);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading measurements");

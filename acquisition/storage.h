@@ -22,7 +22,7 @@ struct sqlite3;
 
 namespace gonio::acquisition {
 
-inline constexpr int kSchemaVersion = 5;
+inline constexpr int kSchemaVersion = 6;
 
 // A run's status, stored as text ("planned", "running", ...) and turned into a string only where
 // it is stored or sent.
@@ -97,6 +97,7 @@ inline constexpr int kFlagAtMaxExposure = 1;  // underexposed even at the longes
 struct MeasurementRow {
   PlannedPoint point;
   Measurement m;
+  std::optional<double> dark_rect_mean;  // ADU, of the dark it was subtracted with
 };
 
 class Storage {
@@ -136,6 +137,11 @@ class Storage {
   Result<std::optional<std::int64_t>> UnfinishedRun();
 
   Result<std::vector<PlannedPoint>> Points(std::int64_t run, bool pending_only);
+  // Points an adaptive run chose (strategy.h), appended after the run's last index as pending,
+  // each with a 'chosen' event carrying its reason, in one transaction: a run killed at any
+  // moment has either the whole decision or none of it. Returns their indices.
+  Result<std::vector<int>> AddChosenPoints(std::int64_t run, std::vector<PlannedPoint> points,
+                                           const std::vector<std::string>& reasons);
   // Stores the measurement and marks its point done, atomically.
   Status StoreMeasurement(std::int64_t run, const Measurement& m);
   Result<std::vector<MeasurementRow>> Measurements(std::int64_t run);
@@ -173,6 +179,7 @@ class Storage {
   Storage() = default;
   Status Exec(const std::string& sql);
   Status Migrate();
+  Status InsertPoint(std::int64_t run, const PlannedPoint& p);  // inside a transaction
   // One connection shared by threads (the daemon's worker and its API): each call, and each
   // call's transaction, runs alone, so one thread's statements never land in another's BEGIN.
   mutable std::recursive_mutex mu_;

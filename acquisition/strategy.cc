@@ -112,6 +112,10 @@ ExposurePolicy CoarseExposure(const Plan& plan) {
   return x;
 }
 
+ExposurePolicy ExposureFor(const Plan& plan, const PlannedPoint& p) {
+  return p.planned_exposure_s ? plan.exposure : CoarseExposure(plan);
+}
+
 double NoiseModel::Exposure(double value) const {
   if (!(value > 0) || !(fill > 0)) return exposure.max_s;
   return std::clamp(OnLadder(fill / value), exposure.min_s, exposure.max_s);
@@ -260,6 +264,10 @@ std::vector<Choice> ChooseNext(const Provisional& model, const NoiseModel& calib
     ch.predicted_sigma = best_sigma;
     ch.exposure_s = noise.Exposure(ch.predicted_value);
     ch.cost_s = noise.Cost(ch.predicted_value);
+    ch.point.skipped = false;
+    ch.point.reason.clear();
+    ch.point.planned_exposure_s = ch.exposure_s;
+    ch.point.predicted_s = ch.cost_s;
     ch.rel_sigma_before = std::sqrt(std::max(0.0, c[0][0]));
     // Sherman-Morrison: (F + g g'/s^2)^-1 = F^-1 - u u' / (s^2 + g'u).
     for (int i = 0; i < 3; ++i)
@@ -287,78 +295,92 @@ Result<fitting::FitSummary> FitSeen(const std::vector<Observation>& seen, double
   return fitting::Fit(samples, options);
 }
 
+Result<AdaptiveStep> NextAdaptiveStep(const Plan& plan, const std::vector<PlannedPoint>& candidates,
+                                      const std::vector<Observation>& seen) {
+  const StrategyPolicy& s = plan.strategy;
+  AdaptiveStep step;
+  AdaptiveOutcome out;
+  double predicted_s = 0, actual_s = 0;  // of the points chosen so far
+  for (const Observation& o : seen) {
+    out.spent_s += o.cost_s;
+    if (o.point.predicted_s > 0)
+      predicted_s += o.point.predicted_s, actual_s += o.cost_s, ++out.chosen;
+  }
+  char text[256];
+  auto fit = FitSeen(seen, plan.specimen.eta);
+  if (!fit.ok()) return fit.error();
+  out.fit = *fit;
+  const double rel = fit->width.sigma / fit->width.value;
+  if (s.target_rel_sigma_alpha > 0 && fit->status == fitting::FitStatus::kConverged &&
+      rel <= s.target_rel_sigma_alpha) {
+    out.stop = AdaptiveOutcome::Stop::kTarget;
+    std::snprintf(text, sizeof text, "reached sigma(alpha)/alpha %.3g <= %.3g after %.0f s", rel,
+                  s.target_rel_sigma_alpha, out.spent_s);
+    out.message = text;
+    step.stop = out;
+    return step;
+  }
+  if (fit->status == fitting::FitStatus::kFailed)
+    return Error{ErrorCode::kFailedPrecondition, "the provisional fit failed after " +
+                                                     std::to_string(seen.size()) +
+                                                     " points: " + fit->message};
+  auto noise = CalibrateNoise(seen, plan.exposure, plan.darks.frames);
+  if (!noise.ok()) return noise.error();
+  const Provisional model{fit->width.value, fit->scale.value, fit->floor.value, plan.specimen.eta};
+  // Batches grow with the run (at least a quarter of the points so far): the choices within a
+  // batch already account for each other, and a fit per few points of a long run would cost
+  // more computer time than they save bench time. The first is `batch`: it measures how far
+  // the predicted costs are off before much is spent on them.
+  const int count =
+      out.chosen == 0 ? s.batch : std::max(s.batch, static_cast<int>(seen.size() / 4));
+  std::vector<Choice> batch = ChooseNext(model, *noise, seen, candidates, count);
+  // What the choices cost so far against what they were predicted to cost (darks retaken as
+  // they age, ranging tries): the budget is checked on predictions scaled by it.
+  const double ratio = predicted_s > 0 ? std::clamp(actual_s / predicted_s, 0.5, 10.0) : 1.0;
+  if (s.budget_s > 0) {  // what of the batch fits in what is left
+    double cost = 0;
+    std::size_t fits = 0;
+    while (fits < batch.size() && out.spent_s + cost + ratio * batch[fits].cost_s <= s.budget_s)
+      cost += ratio * batch[fits++].cost_s;
+    if (fits == 0 && !batch.empty()) {
+      out.stop = AdaptiveOutcome::Stop::kBudget;
+      std::snprintf(text, sizeof text,
+                    "stopped at the budget: %.0f of %.0f s spent, the next point costs %.0f s; "
+                    "sigma(alpha)/alpha is %.3g%s",
+                    out.spent_s, s.budget_s, ratio * batch[0].cost_s, rel,
+                    s.target_rel_sigma_alpha > 0 ? " (the target was not reached)" : "");
+      out.message = text;
+      step.stop = out;
+      return step;
+    }
+    batch.resize(fits);
+  }
+  // A bound that no sensible budget reaches: every candidate chosen 50 times.
+  if (batch.empty() || seen.size() >= 50 * (candidates.size() + 1)) {
+    out.stop = AdaptiveOutcome::Stop::kExhausted;
+    out.message = "no candidate point adds to what is known of alpha";
+    step.stop = out;
+    return step;
+  }
+  step.batch = std::move(batch);
+  return step;
+}
+
 Result<AdaptiveOutcome> RunAdaptive(const Plan& plan, const std::vector<PlannedPoint>& candidates,
                                     std::vector<Observation> seen, const MeasureBatch& measure,
                                     const std::function<void(const Choice&)>& decided) {
-  const StrategyPolicy& s = plan.strategy;
-  AdaptiveOutcome out;
-  for (const Observation& o : seen) out.spent_s += o.cost_s;
-  char text[256];
-  // A bound that no sensible budget reaches: every candidate chosen 50 times.
-  const std::size_t max_points = 50 * candidates.size() + seen.size();
-  double predicted_s = 0, actual_s = 0;  // of the choices measured
-  for (;;) {
-    auto fit = FitSeen(seen, plan.specimen.eta);
-    if (!fit.ok()) return fit.error();
-    out.fit = *fit;
-    const double rel = fit->width.sigma / fit->width.value;
-    if (s.target_rel_sigma_alpha > 0 && fit->status == fitting::FitStatus::kConverged &&
-        rel <= s.target_rel_sigma_alpha) {
-      out.stop = AdaptiveOutcome::Stop::kTarget;
-      std::snprintf(text, sizeof text, "reached sigma(alpha)/alpha %.3g <= %.3g after %.0f s", rel,
-                    s.target_rel_sigma_alpha, out.spent_s);
-      out.message = text;
-      return out;
-    }
-    if (fit->status == fitting::FitStatus::kFailed)
-      return Error{ErrorCode::kFailedPrecondition, "the provisional fit failed after " +
-                                                       std::to_string(seen.size()) +
-                                                       " points: " + fit->message};
-    auto noise = CalibrateNoise(seen, plan.exposure, plan.darks.frames);
-    if (!noise.ok()) return noise.error();
-    const Provisional model{fit->width.value, fit->scale.value, fit->floor.value,
-                            plan.specimen.eta};
-    // Batches grow with the run (at least a quarter of the points so far): the choices within a
-    // batch already account for each other, and a fit per few points of a long run would cost
-    // more computer time than they save bench time. The first is `batch`: it measures how far
-    // the predicted costs are off before much is spent on them.
-    const int count =
-        out.rounds == 0 ? s.batch : std::max(s.batch, static_cast<int>(seen.size() / 4));
-    std::vector<Choice> batch = ChooseNext(model, *noise, seen, candidates, count);
-    // What the choices cost so far against what they were predicted to cost (darks retaken as
-    // they age, ranging tries): the budget is checked on predictions scaled by it.
-    const double ratio = predicted_s > 0 ? std::clamp(actual_s / predicted_s, 0.5, 10.0) : 1.0;
-    if (s.budget_s > 0) {  // what of the batch fits in what is left
-      double cost = 0;
-      std::size_t fits = 0;
-      while (fits < batch.size() && out.spent_s + cost + ratio * batch[fits].cost_s <= s.budget_s)
-        cost += ratio * batch[fits++].cost_s;
-      if (fits == 0 && !batch.empty()) {
-        out.stop = AdaptiveOutcome::Stop::kBudget;
-        std::snprintf(text, sizeof text,
-                      "stopped at the budget: %.0f of %.0f s spent, the next point costs %.0f s; "
-                      "sigma(alpha)/alpha is %.3g%s",
-                      out.spent_s, s.budget_s, ratio * batch[0].cost_s, rel,
-                      s.target_rel_sigma_alpha > 0 ? " (the target was not reached)" : "");
-        out.message = text;
-        return out;
-      }
-      batch.resize(fits);
-    }
-    if (batch.empty() || seen.size() >= max_points) {
-      out.stop = AdaptiveOutcome::Stop::kExhausted;
-      out.message = "no candidate point adds to what is known of alpha";
-      return out;
+  for (int rounds = 0;; ++rounds) {
+    auto step = NextAdaptiveStep(plan, candidates, seen);
+    if (!step.ok()) return step.error();
+    if (step->stop) {
+      step->stop->rounds = rounds;
+      return *step->stop;
     }
     if (decided)
-      for (const Choice& c : batch) decided(c);
-    auto measured = measure(batch);
+      for (const Choice& c : step->batch) decided(c);
+    auto measured = measure(step->batch);
     if (!measured.ok()) return measured.error();
-    for (const Choice& c : batch) predicted_s += c.cost_s;
-    for (const Observation& o : *measured)
-      out.spent_s += o.cost_s, actual_s += o.cost_s, seen.push_back(o);
-    out.chosen += static_cast<int>(batch.size());
-    ++out.rounds;
+    seen.insert(seen.end(), measured->begin(), measured->end());
   }
 }
 

@@ -38,6 +38,9 @@ inline constexpr const char* kCandidateReason = "adaptive: a candidate, measured
 // How an adaptive plan's coarse scan is exposed: the plan's policy with the strategy's
 // coarse_frames and at most coarse_max_s. Other plans: the plan's policy.
 ExposurePolicy CoarseExposure(const Plan& plan);
+// How the engine exposes a point of a plan: an adaptive plan's points without a planned exposure
+// (its coarse scan) by CoarseExposure, the rest by the plan's policy.
+ExposurePolicy ExposureFor(const Plan& plan, const PlannedPoint& p);
 
 // One measured point, as the planner sees it.
 struct Observation {
@@ -104,8 +107,9 @@ std::vector<Choice> ChooseNext(const Provisional& model, const NoiseModel& noise
 // The provisional fit of the points seen (Beckmann, floor fitted, eta fixed at the specimen's).
 Result<fitting::FitSummary> FitSeen(const std::vector<Observation>& seen, double eta);
 
-// An adaptive run, on any way of measuring: `measure` measures the given points and returns what
-// they gave (in that order); `decided` hears each choice before it is measured. Starts from the
+// An adaptive run, on any way of measuring (NextAdaptiveStep until it stops): `measure` measures
+// the given points and returns what they gave, each Observation's point the Choice's (it carries
+// the prediction); `decided` hears each choice before it is measured. Starts from the
 // points already seen (a coarse scan, or a resumed run's points). Stops when the provisional fit's
 // sigma(alpha) / alpha reaches the target, when the next batch would overrun the budget, or when
 // no candidate adds anything; the outcome says which.
@@ -116,6 +120,16 @@ struct AdaptiveOutcome {
   double spent_s = 0;
   int rounds = 0, chosen = 0;
 };
+// One decision of an adaptive run from what it has seen (the points it chose carry their
+// predicted cost, PlannedPoint::predicted_s): either the run is over (`stop`) or `batch` is to be
+// measured next (its points carry their planned exposure and predicted cost). Deterministic: a
+// resumed run that has measured the same points decides the same.
+struct AdaptiveStep {
+  std::optional<AdaptiveOutcome> stop;
+  std::vector<Choice> batch;
+};
+Result<AdaptiveStep> NextAdaptiveStep(const Plan& plan, const std::vector<PlannedPoint>& candidates,
+                                      const std::vector<Observation>& seen);
 using MeasureBatch =
     std::function<Result<std::vector<Observation>>(const std::vector<Choice>& batch)>;
 Result<AdaptiveOutcome> RunAdaptive(const Plan& plan, const std::vector<PlannedPoint>& candidates,

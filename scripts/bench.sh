@@ -16,8 +16,12 @@
 #                    interval                      -> rtu_polling.md
 #   measurement_tradeoff  fit time against alpha bias and coverage: point model, rectangle,
 #                    rectangle + apertures, on Figure 12's samples -> measurement_tradeoff.md
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|sweep|api|stop|rtu|soak ...]
+#   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
+#                    point-level bench, ground, etched and antiglare glass
+#                                                  -> acquire.md, acquire.json, acquire.png
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|acquire|sweep|api|stop|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20)
+#        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 20)
 #        (default: all but soak)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,7 +30,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure sweep api stop rtu)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure acquire sweep api stop rtu)
 # Debian's matplotlib/scipy are installed for the system interpreter (docs/design.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -54,6 +58,10 @@ for part in "${parts[@]}"; do
     measure)
       build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" \
         | tee out/bench/measurement_tradeoff.md ;;
+    acquire)
+      build-release/bench/acquire_strategies "${ACQUIRE_REPEATS:-20}" out/bench/acquire.json \
+        | tee out/bench/acquire.md
+      $py bench/plot_acquire.py out/bench/acquire.json out/bench/acquire.png ;;
     sweep)  # holds the GigE Vision port: no other simulated camera may run meanwhile
       build-release/bench/acquisition_sweep 5 10 | tee out/bench/acquisition_sweep.md ;;
     api)    # goniod's API under load during a sweep; holds the GigE Vision port too

@@ -115,6 +115,7 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
             std::int64_t run_id, const Plan& plan, const Retry& retry) {
   EngineOptions eo;
   eo.linear_limit_adu = cfg.camera.linear_limit_adu;
+  eo.axes = cfg.axes;  // prices an adaptive run's moves against its budget
   Engine engine(*in.stages, *in.camera, in.monitor.monitor.get(), store, eo);
   double outage_since = -1;  // steady seconds; < 0: none
   std::string outage;        // the fault printed for it

@@ -108,6 +108,61 @@ differ=$(q "$work/cycle.sqlite" "attach '$work/ref.sqlite' as ref;
   select count(*) from measurements k join ref.measurements r using (idx)
   where abs(k.value - r.value) > 5 * sqrt(k.sigma * k.sigma + r.sigma * r.sigma)")
 [[ $differ == 0 ]] || { echo "$differ points measured across the power cycle differ"; exit 1; }
+
+# An adaptive run (issue #17) killed at random moments resumes to a complete run: its decisions
+# are stored with the points they chose, so none is made twice or lost, and each chosen point is
+# logged once, with its reason; the run says why it stopped, once.
+cat > "$work/adaptive.toml" <<'PLAN'
+sample = "ground-glass-G1"
+[geometry]
+incidence_deg = [0]
+view_about = "refracted"
+view_from_deg = -30
+view_to_deg = 30
+view_step_deg = 3
+[exposure]
+frames = 2
+initial_s = 0.05
+max_s = 2
+[strategy]
+kind = "adaptive"
+coarse_every = 3
+batch = 3
+budget_s = 60
+[rectangle]
+x = 253
+y = 246
+width = 6
+height = 19
+PLAN
+start "$work/adaptive.log" --db "$work/adaptive.sqlite" run "$work/adaptive.toml"
+akills=0
+for delay in 2.1 3.7 5.3; do
+  sleep "$delay"
+  kill -0 $victim 2>/dev/null || break
+  kill -KILL $victim
+  wait $victim 2>/dev/null || true
+  akills=$((akills + 1))
+  start "$work/adaptive.log" --db "$work/adaptive.sqlite" resume
+done
+wait $victim || { echo "the adaptive run's last resume failed:"; tail -5 "$work/adaptive.log"; exit 1; }
+ad=$work/adaptive.sqlite
+[[ $(q "$ad" "select status from runs") == done ]]
+[[ $(q "$ad" "select count(*) from plan_points where status = 'pending'") == 0 ]]
+chosen=$(q "$ad" "select count(*) from plan_points where predicted_s is not null")
+(( chosen >= 3 )) || { echo "the adaptive run chose $chosen points"; cat "$work/adaptive.log"; exit 1; }
+# Every chosen point measured, and named by exactly one 'chosen' event; no event without a point.
+[[ $(q "$ad" "select count(*) from plan_points p where predicted_s is not null and status = 'done'
+  and (select count(*) from run_events e where e.kind = 'chosen'
+       and e.detail like 'point ' || p.idx || ': %') = 1") == "$chosen" ]] ||
+  { echo "chosen points and their events do not match one to one"; exit 1; }
+[[ $(q "$ad" "select count(*) from run_events where kind = 'chosen'") == "$chosen" ]]
+[[ $(q "$ad" "select count(*) from run_events where kind = 'adaptive'") == 1 ]] ||
+  { echo "the adaptive run's stop was not logged once"; exit 1; }
+(( akills >= 1 )) || { echo "no kill landed in the adaptive run"; exit 1; }
+why=$(q "$ad" "select detail from run_events where kind = 'adaptive'")
+
 echo "$kills kills, $resumes resumes: $total points, none lost or repeated, all within 5 sigma;" \
-  "a power cycle mid-run waited out"
+  "a power cycle mid-run waited out; an adaptive run killed $akills times chose $chosen points," \
+  "each logged once, and stopped: $why"
 

@@ -38,6 +38,47 @@ TEST_F(StorageTest, NewDatabaseIsMigratedToTheCurrentVersionAndANewerOneIsRefuse
       << newer.error().message;
 }
 
+// An adaptive run's choices (#17) are appended after its last point, pending, with their plan,
+// each with one 'chosen' event; they read back as they were stored.
+TEST_F(StorageTest, ChosenPointsAreAppendedWithTheirPlanAndOneEventEach) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  const std::int64_t run = NewRun(**s, 3);
+  PlannedPoint p;
+  p.theta_l_deg = 30, p.theta_v_deg = -12.5;
+  p.stage = {30, 197.5, 0};
+  p.skipped = true, p.reason = "adaptive: a candidate, measured if chosen";
+  p.planned_exposure_s = 0.75, p.predicted_s = 4.5;
+  PlannedPoint q = p;
+  q.theta_v_deg = -10, q.planned_exposure_s = 1.5, q.predicted_s = 7;
+  auto added = (*s)->AddChosenPoints(run, {p, q}, {"the first reason", "the second reason"});
+  ASSERT_TRUE(added.ok()) << added.error().message;
+  EXPECT_EQ(*added, (std::vector<int>{3, 4}));
+  auto pending = (*s)->Points(run, /*pending_only=*/true);
+  ASSERT_TRUE(pending.ok());
+  ASSERT_EQ(pending->size(), 5u);
+  const PlannedPoint& back = (*pending)[4];
+  EXPECT_EQ(back.index, 4);
+  EXPECT_FALSE(back.skipped);
+  EXPECT_EQ(back.reason, "");
+  EXPECT_EQ(back.theta_v_deg, -10);
+  ASSERT_TRUE(back.planned_exposure_s.has_value());
+  EXPECT_EQ(*back.planned_exposure_s, 1.5);
+  EXPECT_EQ(back.predicted_s, 7);
+  EXPECT_FALSE((*pending)[0].planned_exposure_s.has_value());
+  auto events = (*s)->Events(run);
+  ASSERT_TRUE(events.ok());
+  int chosen = 0;
+  for (const RunEvent& e : *events)
+    if (e.kind == "chosen") {
+      ++chosen;
+      EXPECT_TRUE(e.detail == "point 3: the first reason" ||
+                  e.detail == "point 4: the second reason")
+          << e.detail;
+    }
+  EXPECT_EQ(chosen, 2);
+}
+
 // Version 1 had no jobs table: a database written by that version keeps its runs and gains it.
 TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   std::int64_t run = 0;
@@ -50,9 +91,12 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   sqlite3* db = nullptr;
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
   // Back to version 1: without the jobs (2), the points' side (3), the runs' response and the
-  // points' budget (4), the runs' estimate and the points' exposure (5).
+  // points' budget (4), the runs' estimate and the points' exposure (5), the chosen points'
+  // plan (6).
   ASSERT_EQ(sqlite3_exec(db,
                          "DROP INDEX jobs_by_state; DROP TABLE jobs; "
+                         "ALTER TABLE plan_points DROP COLUMN planned_exposure_s; "
+                         "ALTER TABLE plan_points DROP COLUMN predicted_s; "
                          "ALTER TABLE runs DROP COLUMN estimate_s; "
                          "ALTER TABLE runs DROP COLUMN estimate_exposure_s; "
                          "ALTER TABLE runs DROP COLUMN estimate_basis; "
@@ -68,7 +112,7 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   sqlite3_close(db);
   auto s = Storage::Open(path);
   ASSERT_TRUE(s.ok()) << s.error().message;
-  EXPECT_EQ((*s)->schema_version(), 5);
+  EXPECT_EQ((*s)->schema_version(), 6);
   auto rows = (*s)->Measurements(run);
   ASSERT_TRUE(rows.ok());
   ASSERT_EQ(rows->size(), 1u);

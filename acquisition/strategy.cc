@@ -126,20 +126,36 @@ double NoiseModel::Sigma(double value) const {
   return std::sqrt(shot * s / t + read / (t * t) + lamp * s * s);
 }
 
+double NoiseModel::Take(double value) {
+  const double cost = Cost(value), t = Exposure(value);
+  const auto dark = dark_taken.find(t);
+  if (dark == dark_taken.end() || clock_s - dark->second > dark_max_age_s) dark_taken[t] = clock_s;
+  clock_s += cost;
+  return cost;
+}
+
 double NoiseModel::Cost(double value) const {
   const double t = Exposure(value);
-  const bool dark = std::find(darked.begin(), darked.end(), t) != darked.end();
+  const auto it = dark_taken.find(t);
+  const bool dark = it != dark_taken.end() && clock_s - it->second <= dark_max_age_s;
   return exposure.frames * t + overhead_s + (dark ? 0 : dark_frames * t);
 }
 
 Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
-                                  const ExposurePolicy& exposure, int dark_frames) {
+                                  const ExposurePolicy& exposure, const DarkPolicy& darks) {
   NoiseModel m;
   m.exposure = exposure;
-  m.dark_frames = dark_frames;
-  for (const Observation& o : seen)
-    if (std::find(m.darked.begin(), m.darked.end(), o.exposure_s) == m.darked.end())
-      m.darked.push_back(o.exposure_s);
+  m.dark_frames = darks.frames;
+  // The dark library as the engine keeps it, replayed on the points' costs (summed, the run's
+  // clock): a set is taken at the first point of its exposure and again once it is older than
+  // max_age_s.
+  m.dark_max_age_s = darks.max_age_s;
+  for (const Observation& o : seen) {
+    auto it = m.dark_taken.find(o.exposure_s);
+    if (it == m.dark_taken.end() || m.clock_s - it->second > darks.max_age_s)
+      m.dark_taken[o.exposure_s] = m.clock_s;
+    m.clock_s += o.cost_s;
+  }
   std::vector<const Observation*> use;
   for (const Observation& o : seen)
     if (o.value > 0 && o.sigma > 0 && o.exposure_s > 0) use.push_back(&o);
@@ -273,7 +289,7 @@ std::vector<Choice> ChooseNext(const Provisional& model, const NoiseModel& calib
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) c[i][j] -= best_u[i] * best_u[j] / best_denominator;
     ch.rel_sigma_after = std::sqrt(std::max(0.0, c[0][0]));
-    noise.darked.push_back(ch.exposure_s);
+    noise.Take(ch.predicted_value);  // the batch's clock runs on, its darks are taken
     (void)best_gain;
     out.push_back(ch);
   }
@@ -324,7 +340,7 @@ Result<AdaptiveStep> NextAdaptiveStep(const Plan& plan, const std::vector<Planne
     return Error{ErrorCode::kFailedPrecondition, "the provisional fit failed after " +
                                                      std::to_string(seen.size()) +
                                                      " points: " + fit->message};
-  auto noise = CalibrateNoise(seen, plan.exposure, plan.darks.frames);
+  auto noise = CalibrateNoise(seen, plan.exposure, plan.darks);
   if (!noise.ok()) return noise.error();
   const Provisional model{fit->width.value, fit->scale.value, fit->floor.value, plan.specimen.eta};
   // Batches grow with the run (at least a quarter of the points so far): the choices within a
@@ -334,34 +350,54 @@ Result<AdaptiveStep> NextAdaptiveStep(const Plan& plan, const std::vector<Planne
   const int count =
       out.chosen == 0 ? s.batch : std::max(s.batch, static_cast<int>(seen.size() / 4));
   std::vector<Choice> batch = ChooseNext(model, *noise, seen, candidates, count);
-  // What the choices cost so far against what they were predicted to cost (darks retaken as
-  // they age, ranging tries): the budget is checked on predictions scaled by it.
+  // What the choices cost so far against what they were predicted to cost (ranging tries, longer
+  // moves): the budget is checked on predictions scaled by it.
   const double ratio = predicted_s > 0 ? std::clamp(actual_s / predicted_s, 0.5, 10.0) : 1.0;
-  if (s.budget_s > 0) {  // what of the batch fits in what is left
-    double cost = 0;
-    std::size_t fits = 0;
-    while (fits < batch.size() && out.spent_s + cost + ratio * batch[fits].cost_s <= s.budget_s)
-      cost += ratio * batch[fits++].cost_s;
-    if (fits == 0 && !batch.empty()) {
-      out.stop = AdaptiveOutcome::Stop::kBudget;
-      std::snprintf(text, sizeof text,
-                    "stopped at the budget: %.0f of %.0f s spent, the next point costs %.0f s; "
-                    "sigma(alpha)/alpha is %.3g%s",
-                    out.spent_s, s.budget_s, ratio * batch[0].cost_s, rel,
-                    s.target_rel_sigma_alpha > 0 ? " (the target was not reached)" : "");
-      out.message = text;
-      step.stop = out;
-      return step;
+  // Measured in the grid's order (a serpentine), not the order of choice: the stages move least.
+  // The costs are priced again in that order (which darks age out depends on it); while the batch
+  // overruns what is left of the budget, its last choice goes.
+  std::vector<std::pair<Choice, std::size_t>> ranked;  // with the order of choice
+  for (std::size_t k = 0; k < batch.size(); ++k) ranked.emplace_back(batch[k], k);
+  std::stable_sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
+    return a.first.point.index < b.first.point.index;
+  });
+  auto price = [&] {
+    NoiseModel n = *noise;
+    double total = 0;
+    for (auto& [c, k] : ranked) {
+      c.cost_s = c.point.predicted_s = n.Take(c.predicted_value);
+      total += ratio * c.cost_s;
     }
-    batch.resize(fits);
+    return total;
+  };
+  // Before any choice was measured the predictions are untested: the first batch may spend at
+  // most half of what is left.
+  const double left = (s.budget_s - out.spent_s) * (out.chosen == 0 ? 0.5 : 1.0);
+  const double first_cost = batch.empty() ? 0 : ratio * batch[0].cost_s;
+  while (!ranked.empty() && price() > left && s.budget_s > 0)
+    ranked.erase(std::max_element(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
+      return a.second < b.second;
+    }));
+  if (s.budget_s > 0 && ranked.empty() && !batch.empty()) {
+    out.stop = AdaptiveOutcome::Stop::kBudget;
+    std::snprintf(text, sizeof text,
+                  "stopped at the budget: %.0f of %.0f s spent, the next point costs %.0f s; "
+                  "sigma(alpha)/alpha is %.3g%s",
+                  out.spent_s, s.budget_s, first_cost, rel,
+                  s.target_rel_sigma_alpha > 0 ? " (the target was not reached)" : "");
+    out.message = text;
+    step.stop = out;
+    return step;
   }
   // A bound that no sensible budget reaches: every candidate chosen 50 times.
-  if (batch.empty() || seen.size() >= 50 * (candidates.size() + 1)) {
+  if (ranked.empty() || seen.size() >= 50 * (candidates.size() + 1)) {
     out.stop = AdaptiveOutcome::Stop::kExhausted;
     out.message = "no candidate point adds to what is known of alpha";
     step.stop = out;
     return step;
   }
+  batch.clear();
+  for (auto& [c, k] : ranked) batch.push_back(c);
   step.batch = std::move(batch);
   return step;
 }

@@ -20,6 +20,7 @@
 
 #include <array>
 #include <functional>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -61,21 +62,25 @@ struct Observation {
 //             every pixel shares);
 //   cost      = frames t + overhead_s, the median over the points of what they cost beyond their
 //             averaged frames (the move, ranging tries, readouts), plus a dark set at an exposure
-//             no point has been taken at.
+//             whose set is missing or older than max_age_s (the dark library replayed).
 struct NoiseModel {
   double fill = 0;
   double shot = 0, read = 0, lamp = 0;
   double overhead_s = 0;
   int dark_frames = 4;
-  std::vector<double> darked;  // exposures the points so far were taken at
+  double dark_max_age_s = 600;
+  std::map<double, double> dark_taken;  // exposure -> when its dark set was taken (clock_s)
+  double clock_s = 0;                   // the run's bench seconds so far
   ExposurePolicy exposure;
   double Exposure(double value) const;
   double Sigma(double value) const;
   double Cost(double value) const;
+  // Cost, and the point taken: the clock runs on and its dark set, if it needed one, is taken.
+  double Take(double value);
 };
 // Needs at least 3 points with a positive value; an error says what is missing.
 Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
-                                  const ExposurePolicy& exposure, int dark_frames);
+                                  const ExposurePolicy& exposure, const DarkPolicy& darks);
 
 // The provisional model: S = k f(l, v; alpha, eta) |cos theta_l| + b (Beckmann).
 struct Provisional {

@@ -39,6 +39,7 @@ struct Row {
   std::string specimen, strategy, setting;
   double time_median_s = 0, error_median = 0, error_p90 = 0, coverage = 0, points = 0;
   double rel_sigma_median = 0;
+  double worst_overrun = 0;  // adaptive: the largest bench time over budget, as a fraction
   int failed = 0, runs = 0;
 };
 
@@ -85,6 +86,8 @@ Row Measure(const Case& c, const Plan& plan, const std::string& setting, int rep
                    run->stop.c_str());
     const double a = run->fit.width.value, s = run->fit.width.sigma;
     times.push_back(run->spent_s);
+    if (plan.strategy.budget_s > 0)
+      row.worst_overrun = std::max(row.worst_overrun, run->spent_s / plan.strategy.budget_s - 1);
     errors.push_back(std::abs(a / c.alpha - 1));
     rel.push_back(s / a);
     points.push_back(run->points);
@@ -127,7 +130,8 @@ int main(int argc, char** argv) {
       char setting[64];
       std::snprintf(setting, sizeof setting, "budget 1/%.0f of the reference", 1 / fraction);
       rows.push_back(Measure(c, p, setting, repeats));
-      std::fprintf(stderr, "%s adaptive %s done\n", c.name, setting);
+      std::fprintf(stderr, "%s adaptive %s: the largest overrun of the budget %+.1f %%\n", c.name,
+                   setting, 100 * rows.back().worst_overrun);
     }
   }
   std::printf(

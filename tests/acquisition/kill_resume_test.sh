@@ -45,17 +45,26 @@ total=$(q "$work/ref.sqlite" "select count(*) from plan_points")
 
 # The victim: killed at random moments, resumed each time. A resume first waits out the dead
 # process's hold on the camera (the GigE Vision heartbeat timeout it set, 10 s), then measures.
+# Kills the victim after each delay while it lives, resuming it each time, then waits for the
+# last resume; sets landed to the number of kills.
+# Usage: kill_and_resume LOG DB DELAY...
+kill_and_resume() {
+  local log=$1 db=$2
+  shift 2
+  landed=0
+  for delay in "$@"; do
+    sleep "$delay"
+    kill -0 $victim 2>/dev/null || break
+    kill -KILL $victim
+    wait $victim 2>/dev/null || true
+    landed=$((landed + 1))
+    start "$log" --db "$db" resume
+  done
+  wait $victim || { echo "the last resume failed:"; tail -5 "$log"; exit 1; }
+}
 start "$work/kill.log" --db "$work/kill.sqlite" run "$work/plan.toml"
-kills=0
-for delay in 1.3 4.4 3.9 4.8; do
-  sleep "$delay"
-  kill -0 $victim 2>/dev/null || break
-  kill -KILL $victim
-  wait $victim 2>/dev/null || true
-  kills=$((kills + 1))
-  start "$work/kill.log" --db "$work/kill.sqlite" resume
-done
-wait $victim || { echo "the last resume failed:"; tail -5 "$work/kill.log"; exit 1; }
+kill_and_resume "$work/kill.log" "$work/kill.sqlite" 1.3 4.4 3.9 4.8
+kills=$landed
 done_points=$(q "$work/kill.sqlite" "select count(*) from measurements")
 [[ $done_points == "$total" ]] || { echo "kill.sqlite has $done_points of $total"; exit 1; }
 [[ $(q "$work/kill.sqlite" "select count(*) from plan_points where status <> 'done'") == 0 ]]
@@ -135,18 +144,10 @@ y = 246
 width = 6
 height = 19
 PLAN
-start "$work/adaptive.log" --db "$work/adaptive.sqlite" run "$work/adaptive.toml"
-akills=0
-for delay in 2.1 3.7 5.3; do
-  sleep "$delay"
-  kill -0 $victim 2>/dev/null || break
-  kill -KILL $victim
-  wait $victim 2>/dev/null || true
-  akills=$((akills + 1))
-  start "$work/adaptive.log" --db "$work/adaptive.sqlite" resume
-done
-wait $victim || { echo "the adaptive run's last resume failed:"; tail -5 "$work/adaptive.log"; exit 1; }
 ad=$work/adaptive.sqlite
+start "$work/adaptive.log" --db "$ad" run "$work/adaptive.toml"
+kill_and_resume "$work/adaptive.log" "$ad" 2.1 3.7 5.3
+akills=$landed
 [[ $(q "$ad" "select status from runs") == done ]]
 [[ $(q "$ad" "select count(*) from plan_points where status = 'pending'") == 0 ]]
 chosen=$(q "$ad" "select count(*) from plan_points where predicted_s is not null")

@@ -140,6 +140,9 @@ TEST(Strategy, AnAdaptivePlanStartsWithItsCoarseScanAndKeepsTheRestAsCandidates)
   // 81 views per incidence: 17 on the coarse scan (every 5th from the first), 64 candidates.
   EXPECT_EQ(measured, 2 * 17);
   EXPECT_EQ(candidates, 2 * 64);
+  auto example = LoadPlan(GONIO_SOURCE_DIR "/config/plan_adaptive.toml", Context());
+  ASSERT_TRUE(example.ok()) << example.error().message;
+  EXPECT_EQ(example->strategy.kind, "adaptive");
   ExposurePolicy coarse = CoarseExposure(*plan);
   EXPECT_EQ(coarse.frames, 1);
   EXPECT_DOUBLE_EQ(coarse.max_s, 1);
@@ -169,7 +172,7 @@ TEST(Strategy, TheNoiseModelRecoversKnownCoefficients) {
   ASSERT_TRUE(plan.ok());
   const Provisional truth{0.344, 1, 0.002, 1.51};
   const auto seen = KnownNoise(truth, 3e-4, 2e-6, 1e-6, ExpandGrid(*plan, Context()));
-  auto noise = CalibrateNoise(seen, plan->exposure, 4);
+  auto noise = CalibrateNoise(seen, plan->exposure, plan->darks);
   ASSERT_TRUE(noise.ok()) << noise.error().message;
   EXPECT_NEAR(noise->shot / 3e-4, 1, 1e-6);
   EXPECT_NEAR(noise->read / 2e-6, 1, 1e-6);
@@ -177,7 +180,7 @@ TEST(Strategy, TheNoiseModelRecoversKnownCoefficients) {
   EXPECT_NEAR(noise->fill / 20, 1, 1e-9);
   EXPECT_NEAR(noise->overhead_s, 2.5, 1e-9);
   // Too few points: said, not guessed.
-  auto few = CalibrateNoise({seen[0], seen[1]}, plan->exposure, 4);
+  auto few = CalibrateNoise({seen[0], seen[1]}, plan->exposure, plan->darks);
   ASSERT_FALSE(few.ok());
   EXPECT_NE(few.error().message.find("needs 3 measured points"), std::string::npos);
 }
@@ -228,7 +231,7 @@ TEST(Strategy, TheNextPointIsTheOneThatShrinksAlphasVarianceMostPerSecond) {
   for (const PlannedPoint& p : grid)
     if (p.theta_l_deg == 0) normal.push_back(p);
   const auto seen = KnownNoise(truth, 3e-4, 2e-6, 1e-6, normal);
-  auto noise = CalibrateNoise(seen, plan->exposure, 4);
+  auto noise = CalibrateNoise(seen, plan->exposure, plan->darks);
   ASSERT_TRUE(noise.ok());
   const auto chosen = ChooseNext(truth, *noise, seen, grid, 1);
   ASSERT_EQ(chosen.size(), 1u);

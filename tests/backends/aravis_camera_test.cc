@@ -285,7 +285,14 @@ TEST_F(CameraDriver, AnInterruptEndsTheExposureInHandAndTheCameraIsReadyAgain) {
   ASSERT_TRUE(cam->SetExposure(0.05).ok());
   auto f = cam->Snap();
   ASSERT_TRUE(f.ok()) << f.error().message;
-  EXPECT_EQ(f->attempts, 1);
+  // Ready again: the first trigger is answered. A frame that arrives short of packets is taken
+  // again, as on any frame (GVSP over loopback drops packets on a loaded machine: CI saw 4
+  // attempts beside the fuzz replays); a trigger left unanswered is what an interrupt must not
+  // leave behind.
+  if (f->attempts > 1) {
+    EXPECT_NE(f->retried_because.find("incomplete"), std::string::npos)
+        << f->attempts << " attempts: " << f->retried_because;
+  }
   cam->SetInterrupt(nullptr);
 }
 

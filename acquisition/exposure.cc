@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "acquisition/point_bench.h"
 #include "acquisition/strategy.h"
 #include "fitting/model.h"
 #include "fitting/sample.h"
@@ -60,12 +61,23 @@ RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points
                        const std::vector<devices::AxisSettings>& axes, const ExposureHistory* seen,
                        const std::optional<Throughput>& bench, double linear_limit_adu,
                        int max_ranging_tries) {
-  std::optional<LobeForecast> forecast;
-  if (seen == nullptr)
-    forecast = ForecastFor(plan.specimen, bench, linear_limit_adu, max_ranging_tries);
-  const LobeForecast* f = forecast ? &*forecast : nullptr;
-  EstimateParts parts;
+  const bool adaptive = plan.strategy.kind == "adaptive";
+  const std::optional<LobeForecast> forecast =
+      ForecastFor(plan.specimen, bench, linear_limit_adu, max_ranging_tries);
   RunEstimate e;
+  // An adaptive plan on a bench whose noise is known: its runs simulated on a point bench like
+  // it, to the target or the budget; the median, with the range in the basis.
+  if (adaptive && forecast && forecast->bench.noise) {
+    auto runs = ForecastAdaptive(plan, points, BenchLike(*forecast, *forecast->bench.noise, axes));
+    if (runs.ok()) {
+      e.total_s = runs->median_s;
+      e.exposure_s = runs->exposure_median_s;
+      e.basis = DescribeEstimateBasis(nullptr, &*forecast) + "; " + runs->Describe();
+      return e;
+    }
+  }
+  const LobeForecast* f = seen == nullptr && forecast ? &*forecast : nullptr;
+  EstimateParts parts;
   // An adaptive plan's points are its coarse scan, exposed short; what it chooses after is
   // bounded by its budget (which counts the coarse scan too).
   Plan priced = plan;
@@ -73,7 +85,7 @@ RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points
   e.total_s = EstimateSeconds(priced, points, axes, priced.exposure.initial_s, seen, f, &parts);
   e.exposure_s = parts.exposure_s;
   e.basis = DescribeEstimateBasis(seen, f);
-  if (plan.strategy.kind == "adaptive" && plan.strategy.budget_s > e.total_s) {
+  if (adaptive && plan.strategy.budget_s > e.total_s) {
     char text[96];
     std::snprintf(text, sizeof text, "; adaptive: a %.0f s coarse scan, then at most its budget",
                   e.total_s);

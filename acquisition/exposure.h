@@ -31,6 +31,13 @@ struct ExposureJudgement {
 ExposureJudgement JudgeExposure(const ExposurePolicy& x, double t, double peak_adu,
                                 double range_adu);
 
+// The bench's noise per frame, in stored value units: sigma^2 x frames = shot S/t + read/t^2 +
+// lamp S^2 at value S and exposure t (CalibrateFrameNoise, strategy.h). It describes the bench,
+// not a specimen: a run of one specimen calibrates the forecast of a run of another.
+struct FrameNoise {
+  double shot = 0, read = 0, lamp = 0;
+};
+
 // What the bench delivers, measured on a finished run that has a fit (Storage::LatestThroughput).
 struct Throughput {
   std::int64_t run = 0;      // the run it comes from
@@ -38,6 +45,7 @@ struct Throughput {
   double floor = 0;          // the fit's constant floor b (stray light), stored value units
   double adu_per_value = 0;  // rectangle-mean ADU per second per unit of stored value (median)
   double dark_adu = 0;       // the dark's rectangle mean (median over the run's darks)
+  std::optional<FrameNoise> noise;  // the run's points' sigmas, where they calibrate one
 };
 
 // A specimen's expected lobe at the bench's throughput.
@@ -73,7 +81,10 @@ struct RunEstimate {
 // The estimate of a new run of `plan` on what is known, in this order: `seen`, the specimen's
 // newest finished run's exposures (null: none); else its expected lobe at `bench`, the bench's
 // throughput (ForecastFor); else the plan's initial exposure. linear_limit_adu and
-// max_ranging_tries are the engine's (EngineOptions). The one choice of basis behind a run's
+// max_ranging_tries are the engine's (EngineOptions). An adaptive plan, when `bench` has a noise
+// calibration and the specimen an expected width: its runs simulated to the target or the budget
+// (point_bench.h, ForecastAdaptive), the median as the estimate and the 10-90 % range in the
+// basis; else its coarse scan and at most its budget. The one choice of basis behind a run's
 // stored estimate (Storage's EstimateRun) and a schedule's dry run.
 RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points,
                        const std::vector<devices::AxisSettings>& axes, const ExposureHistory* seen,

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <limits>
 
 #include "acquisition/exposure.h"
 
@@ -17,11 +19,13 @@ Observation PointBench::Measure(const PlannedPoint& p, const ExposurePolicy& x, 
   out.point = p;
   const double rate_e = Truth(p) * o_.electrons_per_s_per_value;  // per pixel
   const double range_adu = o_.full_well_e / o_.gain_e_per_adu;
-  double cost =
-      std::max(std::abs(p.stage.sample_deg - sample_deg_), std::abs(p.stage.arm_deg - arm_deg_)) /
-          o_.degrees_per_s +
-      o_.settle_s;
-  sample_deg_ = p.stage.sample_deg, arm_deg_ = p.stage.arm_deg;
+  double cost = !o_.axes.empty() ? MoveSeconds(o_.axes, at_, p.stage)
+                                 : std::max(std::abs(p.stage.sample_deg - at_.sample_deg),
+                                            std::abs(p.stage.arm_deg - at_.arm_deg)) /
+                                           o_.degrees_per_s +
+                                       o_.settle_s;
+  at_ = p.stage;
+  moved_s_ += cost;
   // The engine's ranging: each try is a frame; the last one kept is the first averaged frame.
   double t = planned_s > 0 ? planned_s : last_exposure_s_ > 0 ? last_exposure_s_ : x.initial_s;
   for (int tries = 0; tries < 12; ++tries) {
@@ -85,6 +89,7 @@ Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoin
     if (!outcome.ok()) return outcome.error();
     run.fit = outcome->fit;
     run.stop = outcome->message;
+    run.reached_target = outcome->stop == AdaptiveOutcome::Stop::kTarget;
     run.points = static_cast<int>(seen.size()) + outcome->chosen;
   } else {
     auto fit = FitSeen(seen, plan.specimen.eta);
@@ -93,7 +98,78 @@ Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoin
     run.points = static_cast<int>(seen.size());
   }
   run.spent_s = bench.spent_s();
+  run.moved_s = bench.moved_s();
   return run;
+}
+
+PointBenchOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
+                            const std::vector<devices::AxisSettings>& axes) {
+  PointBenchOptions o;
+  o.alpha = lobe.alpha;
+  o.eta = lobe.eta;
+  o.k = lobe.bench.scale;
+  // Electrons per second per unit of value: 1 / shot, so that shot noise is the calibrated one.
+  // A bench whose sigmas show no shot noise at all: photons as good as free.
+  o.electrons_per_s_per_value = noise.shot > 0 ? 1 / noise.shot : 1e12;
+  const double e = o.electrons_per_s_per_value;
+  o.pixels = 1;
+  o.read_noise_e = std::sqrt(noise.read) * e;
+  o.dark_e_per_s = 0;  // in `read`
+  o.flicker_rms = std::sqrt(noise.lamp);
+  o.stray_e_per_s = lobe.bench.floor * e;
+  o.gain_e_per_adu = lobe.bench.adu_per_value > 0 ? e / lobe.bench.adu_per_value : 1;
+  o.full_well_e = std::max(1.0, lobe.linear_limit_adu - lobe.bench.dark_adu) * o.gain_e_per_adu;
+  o.readout_s = 0;
+  o.axes = axes;
+  return o;
+}
+
+std::string AdaptiveForecast::Describe() const {
+  char text[160];
+  std::snprintf(text, sizeof text,
+                "adaptive: %d simulated runs: %.0f s (10-90 %%: %.0f-%.0f s), the target reached "
+                "in %d",
+                runs, median_s, low_s, high_s, reached);
+  std::string out = text;
+  if (failed > 0) out += ", " + std::to_string(failed) + " failed";
+  return out;
+}
+
+Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedPoint> points,
+                                          const PointBenchOptions& like, int runs) {
+  for (PlannedPoint& p : points)
+    if (p.skipped && p.reason == kCandidateReason) p.skipped = false, p.reason.clear();
+  AdaptiveForecast f;
+  std::vector<double> times, exposures;
+  std::string first_error;
+  for (int r = 1; r <= runs; ++r) {
+    PointBenchOptions o = like;
+    o.seed = static_cast<std::uint64_t>(r);
+    auto run = SimulateRun(plan, points, o);
+    ++f.runs;
+    if (!run.ok() || run->fit.status == fitting::FitStatus::kFailed) {
+      ++f.failed;
+      if (first_error.empty()) first_error = run.ok() ? run->fit.message : run.error().message;
+      continue;
+    }
+    times.push_back(run->spent_s);
+    exposures.push_back(run->spent_s - run->moved_s);
+    if (run->reached_target) ++f.reached;
+  }
+  if (times.empty())
+    return Error{ErrorCode::kFailedPrecondition,
+                 "every simulated run failed; the first: " + first_error};
+  // Quantiles interpolated between order statistics.
+  auto at = [](std::vector<double> v, double q) {
+    std::sort(v.begin(), v.end());
+    const double x = q * static_cast<double>(v.size() - 1);
+    const auto i = static_cast<std::size_t>(x);
+    const double w = x - static_cast<double>(i);
+    return i + 1 < v.size() ? v[i] * (1 - w) + v[i + 1] * w : v[i];
+  };
+  f.median_s = at(times, 0.5), f.low_s = at(times, 0.1), f.high_s = at(times, 0.9);
+  f.exposure_median_s = at(exposures, 0.5);
+  return f;
 }
 
 }  // namespace gonio::acquisition

@@ -21,6 +21,7 @@
 #include <cstdint>
 #include <random>
 
+#include "acquisition/exposure.h"
 #include "acquisition/plan.h"
 #include "acquisition/strategy.h"
 
@@ -37,6 +38,9 @@ struct PointBenchOptions {
   int dark_frames = 4;
   double dark_max_age_s = 600;  // a dark set older than this (bench seconds) is taken again
   double degrees_per_s = 10, settle_s = 0.1;
+  // When given, moves are priced as the instrument prices them (MoveSeconds at these axes'
+  // speeds and accelerations) instead of by degrees_per_s and settle_s.
+  std::vector<devices::AxisSettings> axes;
   // A frame's readout (512 x 512 at 1 MHz): each ranging try and averaged frame waits for it,
   // except the point's last, which reads out while the stages move on (the engine's overlap).
   double readout_s = 0.262;
@@ -54,14 +58,15 @@ class PointBench {
   // The expected stored value (no noise): k f |cos theta_l| + stray / electrons_per_s_per_value.
   double Truth(const PlannedPoint& p) const;
   double spent_s() const { return spent_s_; }
+  double moved_s() const { return moved_s_; }  // of which moves and settling
 
  private:
   PointBenchOptions o_;
   std::mt19937_64 rng_;
   double last_exposure_s_ = 0;
-  double sample_deg_ = 0, arm_deg_ = 180;
+  StageTargets at_;
   std::vector<std::pair<double, double>> darks_;  // exposure, bench second it was taken at
-  double spent_s_ = 0;
+  double spent_s_ = 0, moved_s_ = 0;
 };
 
 // One run of `plan` on a point bench: the grid's points its strategy selects (SelectByStrategy),
@@ -70,11 +75,40 @@ class PointBench {
 struct SimulatedRun {
   fitting::FitSummary fit;
   double spent_s = 0;
+  double moved_s = 0;  // of which moves
   double first_s = 0;  // of which the points the strategy selected first (adaptive: coarse scan)
   int points = 0;
-  std::string stop;  // an adaptive run's outcome; empty otherwise
+  std::string stop;             // an adaptive run's outcome; empty otherwise
+  bool reached_target = false;  // an adaptive run that stopped at its target
 };
 Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoint>& grid,
                                  PointBenchOptions options);
+
+}  // namespace gonio::acquisition
+
+namespace gonio::acquisition {
+
+// A point bench that stands for a measured bench (issue #17, the estimate before a run): the
+// specimen's expected lobe at the bench's throughput (`lobe`: its k, floor, counts per value, dark
+// level and linear range) and the bench's noise per frame (`noise`, CalibrateFrameNoise on that
+// run's points). The rectangle is one "pixel" whose electrons per second per value is 1 / shot,
+// so that shot noise, read noise (read) and the lamp (lamp) come out as calibrated; moves as the
+// instrument prices them at `axes`; no readout (the stored bench time has none).
+PointBenchOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
+                            const std::vector<devices::AxisSettings>& axes);
+
+// What an adaptive plan is expected to cost before it is run: `runs` simulated runs on `like`
+// (seeds 1..runs: the same inputs give the same forecast), each to its target or its budget.
+struct AdaptiveForecast {
+  int runs = 0, reached = 0, failed = 0;       // failed: the simulated run's fit failed
+  double median_s = 0, low_s = 0, high_s = 0;  // bench seconds: median, 10th and 90th percentile
+  double exposure_median_s = 0;                // of the time without moves
+  // "adaptive: simulated 20 runs: 2410 s (10-90 %: 2100-2900 s), the target reached in 18"
+  std::string Describe() const;
+};
+// `points`: the plan's grid, or its points as ExpandPoints marked them (the candidates are
+// restored to the grid). An error if every run failed.
+Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedPoint> points,
+                                          const PointBenchOptions& like, int runs = 20);
 
 }  // namespace gonio::acquisition

@@ -1,6 +1,7 @@
 #include "acquisition/storage.h"
 
 #include "acquisition/sql_statement.h"
+#include "acquisition/strategy.h"
 
 #include <sqlite3.h>
 
@@ -563,15 +564,22 @@ Result<std::optional<Throughput>> Storage::LatestThroughput() {
   t.floor = std::max(0.0, q.D(2));
   // Counts per stored value: the rectangle's rate above its dark over the value (the monitor
   // normalisation), and the dark's level; medians, so that a stray point does not decide.
+  // The points' sigmas calibrate the bench's noise per frame (for an adaptive plan's forecast).
   Stmt m(db_,
-         "SELECT (m.rect_mean - d.rect_mean) / m.exposure_s / m.value, d.rect_mean "
+         "SELECT (m.rect_mean - d.rect_mean) / m.exposure_s / m.value, d.rect_mean, "
+         "m.value, m.sigma, m.exposure_s, m.frames "
          "FROM measurements m JOIN darks d ON d.id = m.dark_id "
          "WHERE m.run_id = ? AND m.value > 0 AND m.exposure_s > 0");
   m.Bind(1, t.run);
   std::vector<double> per_value, dark;
+  std::vector<Observation> points;
   while ((rc = m.Step()) == SQLITE_ROW) {
     if (m.D(0) > 0) per_value.push_back(m.D(0));
     dark.push_back(m.D(1));
+    Observation o;
+    o.value = m.D(2), o.sigma = m.D(3), o.exposure_s = m.D(4);
+    o.frames = static_cast<int>(m.I(5));
+    points.push_back(o);
   }
   if (rc != SQLITE_DONE) return m.Fail("reading run " + std::to_string(t.run) + "'s exposures");
   if (per_value.empty()) return std::optional<Throughput>();
@@ -581,6 +589,7 @@ Result<std::optional<Throughput>> Storage::LatestThroughput() {
   };
   t.adu_per_value = median(per_value);
   t.dark_adu = median(dark);
+  if (auto noise = CalibrateFrameNoise(points); noise.ok()) t.noise = *noise;
   return std::optional<Throughput>(t);
 }
 
@@ -660,7 +669,8 @@ Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
   if (!history.ok()) return history.error();
   const ExposureHistory* seen = *history ? &**history : nullptr;
   std::optional<Throughput> bench;
-  if (seen == nullptr) {  // only then is it read
+  // Read when there is no history, or for an adaptive plan (whose forecast simulates its runs).
+  if (seen == nullptr || plan.strategy.kind == "adaptive") {
     auto throughput = db.LatestThroughput();
     if (!throughput.ok()) return throughput.error();
     bench = *throughput;

@@ -66,6 +66,53 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+// sigma^2 (x frames when per_frame) = shot S/t + read/t^2 + lamp S^2, each >= 0: least squares in
+// relative terms (every row divided by its sigma^2) over each subset of the terms; the best
+// subset whose coefficients are all >= 0 wins (a non-negative least squares on three unknowns).
+Result<FrameNoise> FitNoiseTerms(const std::vector<const Observation*>& use, bool per_frame) {
+  auto variance = [&](const Observation& o) {
+    return o.sigma * o.sigma * (per_frame ? std::max(1, o.frames) : 1);
+  };
+  FrameNoise best_terms;
+  double best = std::numeric_limits<double>::infinity();
+  for (int mask = 1; mask < 8; ++mask) {
+    Mat3 a{};
+    Vec3 b{};
+    for (const Observation* o : use) {
+      const double v = variance(*o), t = o->exposure_s;
+      const Vec3 row{mask & 1 ? o->value / t / v : 0, mask & 2 ? 1 / (t * t) / v : 0,
+                     mask & 4 ? o->value * o->value / v : 0};
+      for (int i = 0; i < 3; ++i) {
+        b[i] += row[i];
+        for (int j = 0; j < 3; ++j) a[i][j] += row[i] * row[j];
+      }
+    }
+    for (int i = 0; i < 3; ++i)
+      if (!(mask & (1 << i))) a[i][i] = 1;  // unused terms: fixed at 0
+    const auto inv = Inverse(a);
+    if (!inv) continue;
+    const Vec3 c = Times(*inv, b);
+    if (c[0] < 0 || c[1] < 0 || c[2] < 0) continue;
+    double r2 = 0;
+    for (const Observation* o : use) {
+      const double t = o->exposure_s;
+      const double model = c[0] * o->value / t + c[1] / (t * t) + c[2] * o->value * o->value;
+      r2 += std::pow(model / variance(*o) - 1, 2);
+    }
+    if (r2 < best) best = r2, best_terms = FrameNoise{c[0], c[1], c[2]};
+  }
+  if (!std::isfinite(best))
+    return Error{ErrorCode::kFailedPrecondition, "the noise model found no fit to the sigmas"};
+  return best_terms;
+}
+
+std::vector<const Observation*> WithSignal(const std::vector<Observation>& seen) {
+  std::vector<const Observation*> use;
+  for (const Observation& o : seen)
+    if (o.value > 0 && o.sigma > 0 && o.exposure_s > 0) use.push_back(&o);
+  return use;
+}
+
 }  // namespace
 
 void SelectByStrategy(const Plan& plan, std::vector<PlannedPoint>* grid) {
@@ -156,9 +203,7 @@ Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
       m.dark_taken[o.exposure_s] = m.clock_s;
     m.clock_s += o.cost_s;
   }
-  std::vector<const Observation*> use;
-  for (const Observation& o : seen)
-    if (o.value > 0 && o.sigma > 0 && o.exposure_s > 0) use.push_back(&o);
+  const std::vector<const Observation*> use = WithSignal(seen);
   if (use.size() < 3)
     return Error{ErrorCode::kFailedPrecondition,
                  "the noise model needs 3 measured points with signal, and there are " +
@@ -174,39 +219,19 @@ Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
     return Error{ErrorCode::kFailedPrecondition,
                  "the noise model needs the points' levels (their fraction of the linear range)"};
   m.fill = Median(fills);
-  // sigma^2 = shot S/t + read/t^2 + lamp S^2, each >= 0: least squares in relative terms
-  // (every row divided by its sigma^2) over each subset of the terms; the best subset whose
-  // coefficients are all >= 0 wins (a non-negative least squares on three unknowns).
-  double best = std::numeric_limits<double>::infinity();
-  for (int mask = 1; mask < 8; ++mask) {
-    Mat3 a{};
-    Vec3 b{};
-    for (const Observation* o : use) {
-      const double v = o->sigma * o->sigma, t = o->exposure_s;
-      const Vec3 row{mask & 1 ? o->value / t / v : 0, mask & 2 ? 1 / (t * t) / v : 0,
-                     mask & 4 ? o->value * o->value / v : 0};
-      for (int i = 0; i < 3; ++i) {
-        b[i] += row[i];
-        for (int j = 0; j < 3; ++j) a[i][j] += row[i] * row[j];
-      }
-    }
-    for (int i = 0; i < 3; ++i)
-      if (!(mask & (1 << i))) a[i][i] = 1;  // unused terms: fixed at 0
-    const auto inv = Inverse(a);
-    if (!inv) continue;
-    const Vec3 c = Times(*inv, b);
-    if (c[0] < 0 || c[1] < 0 || c[2] < 0) continue;
-    double r2 = 0;
-    for (const Observation* o : use) {
-      const double t = o->exposure_s;
-      const double model = c[0] * o->value / t + c[1] / (t * t) + c[2] * o->value * o->value;
-      r2 += std::pow(model / (o->sigma * o->sigma) - 1, 2);
-    }
-    if (r2 < best) best = r2, m.shot = c[0], m.read = c[1], m.lamp = c[2];
-  }
-  if (!std::isfinite(best))
-    return Error{ErrorCode::kFailedPrecondition, "the noise model found no fit to the sigmas"};
+  auto terms = FitNoiseTerms(use, /*per_frame=*/false);
+  if (!terms.ok()) return terms.error();
+  m.shot = terms->shot, m.read = terms->read, m.lamp = terms->lamp;
   return m;
+}
+
+Result<FrameNoise> CalibrateFrameNoise(const std::vector<Observation>& seen) {
+  const std::vector<const Observation*> use = WithSignal(seen);
+  if (use.size() < 3)
+    return Error{ErrorCode::kFailedPrecondition,
+                 "the noise model needs 3 measured points with signal, and there are " +
+                     std::to_string(use.size())};
+  return FitNoiseTerms(use, /*per_frame=*/true);
 }
 
 double Provisional::Value(const PlannedPoint& p) const {
@@ -350,6 +375,19 @@ Result<AdaptiveStep> NextAdaptiveStep(const Plan& plan, const std::vector<Planne
   const int count =
       out.chosen == 0 ? s.batch : std::max(s.batch, static_cast<int>(seen.size() / 4));
   std::vector<Choice> batch = ChooseNext(model, *noise, seen, candidates, count);
+  // No more than the target needs, as predicted: the batch ends at the first choice that brings
+  // the predicted sigma(alpha)/alpha to the target (at least `batch` choices, so that a
+  // prediction a little optimistic costs a few more rounds, not one point per round). Without
+  // it a run overshoots its target by up to a batch, a quarter of its points.
+  if (s.target_rel_sigma_alpha > 0) {
+    const auto enough = std::find_if(batch.begin(), batch.end(), [&](const Choice& c) {
+      return c.rel_sigma_after <= s.target_rel_sigma_alpha;
+    });
+    if (enough != batch.end()) {
+      const auto keep = std::max<std::ptrdiff_t>(enough - batch.begin() + 1, s.batch);
+      if (keep < static_cast<std::ptrdiff_t>(batch.size())) batch.resize(keep);
+    }
+  }
   // What the choices cost so far against what they were predicted to cost (ranging tries, longer
   // moves): the budget is checked on predictions scaled by it.
   const double ratio = predicted_s > 0 ? std::clamp(actual_s / predicted_s, 0.5, 10.0) : 1.0;

@@ -13,7 +13,8 @@
 //      and it costs its exposures and its move; sigma and the exposure come from a noise model
 //      calibrated on the run's own points (NoiseModel);
 //   4. again from 2 until the fit's sigma(alpha) / alpha reaches the target or the next batch
-//      would overrun the budget.
+//      would overrun the budget. A batch ends at the first choice predicted to reach the target
+//      (but holds at least `batch`): a run does not overshoot its target by a batch.
 // The planner works on the point model (no rectangle or apertures): it ranks points, the fit
 // that reports alpha uses the instrument response as every fit does.
 #pragma once
@@ -25,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "acquisition/exposure.h"
 #include "acquisition/plan.h"
 #include "common/result.h"
 #include "fitting/fitter.h"
@@ -81,6 +83,10 @@ struct NoiseModel {
 // Needs at least 3 points with a positive value; an error says what is missing.
 Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
                                   const ExposurePolicy& exposure, const DarkPolicy& darks);
+
+// The bench's noise per frame (exposure.h, FrameNoise), fitted as CalibrateNoise fits its terms
+// with each point's sigma scaled to one frame. Needs 3 points with signal, as CalibrateNoise.
+Result<FrameNoise> CalibrateFrameNoise(const std::vector<Observation>& seen);
 
 // The provisional model: S = k f(l, v; alpha, eta) |cos theta_l| + b (Beckmann).
 struct Provisional {

@@ -27,7 +27,7 @@ def main():
     specimens = list(dict.fromkeys(r["specimen"] for r in rows))
     fig, axes = plt.subplots(1, len(specimens), figsize=(5.2 * len(specimens), 4.4), squeeze=False)
     for ax, specimen in zip(axes[0], specimens):
-        mine = [r for r in rows if r["specimen"] == specimen and r["time_s"] > 0]
+        mine = [r for r in rows if r["specimen"] == specimen and r.get("time_s", 0) > 0]
         for strategy, colour in COLOURS.items():
             pts = sorted((r for r in mine if r["strategy"] == strategy), key=lambda r: r["time_s"])
             if not pts:

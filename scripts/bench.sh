@@ -21,7 +21,7 @@
 #                                                  -> acquire.md, acquire.json, acquire.png
 # Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|acquire|sweep|api|stop|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20)
-#        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 20)
+#        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
 #        (default: all but soak)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -59,7 +59,7 @@ for part in "${parts[@]}"; do
       build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" \
         | tee out/bench/measurement_tradeoff.md ;;
     acquire)
-      build-release/bench/acquire_strategies "${ACQUIRE_REPEATS:-20}" out/bench/acquire.json \
+      build-release/bench/acquire_strategies "${ACQUIRE_REPEATS:-100}" out/bench/acquire.json \
         | tee out/bench/acquire.md
       $py bench/plot_acquire.py out/bench/acquire.json out/bench/acquire.png ;;
     sweep)  # holds the GigE Vision port: no other simulated camera may run meanwhile

@@ -58,6 +58,7 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
     return r.Fail(root.get("job"), "the schedule has no [[job]]");
   Schedule out;
   out.name = name;
+  std::map<std::string, acquisition::RunEstimate> estimates;  // by plan name
   for (const toml::node& node : *jobs) {
     const toml::table* t = node.as_table();
     if (t == nullptr) return r.Fail(&node, "'job' must be a table: [[job]]");
@@ -74,12 +75,20 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
     if (!plan.ok()) return plan.error();
     const auto points = acquisition::ExpandPoints(*plan, context);
     for (const auto& p : points) (p.skipped ? e.skipped : e.points) += 1;
-    const auto seen = basis.history ? basis.history(plan->specimen.name) : std::nullopt;
-    const acquisition::RunEstimate estimate =
-        acquisition::EstimateOn(*plan, points, context.axes, seen ? &*seen : nullptr,
-                                basis.throughput, basis.linear_limit_adu, basis.max_ranging_tries);
-    e.estimate_s = estimate.total_s;
-    e.estimate_basis = estimate.basis;
+    // Once per plan: an adaptive plan's estimate simulates its runs (seconds), and a schedule may
+    // name a plan in many jobs.
+    auto priced = estimates.find(e.plan_name);
+    if (priced == estimates.end()) {
+      const auto seen = basis.history ? basis.history(plan->specimen.name) : std::nullopt;
+      priced = estimates
+                   .emplace(e.plan_name,
+                            acquisition::EstimateOn(
+                                *plan, points, context.axes, seen ? &*seen : nullptr,
+                                basis.throughput, basis.linear_limit_adu, basis.max_ranging_tries))
+                   .first;
+    }
+    e.estimate_s = priced->second.total_s;
+    e.estimate_basis = priced->second.basis;
     GONIO_TRY(r.Integer(*t, "repeat", &e.repeat, 1, 1000));
     if (const toml::node* s = t->get("start_at")) {
       std::string iso;

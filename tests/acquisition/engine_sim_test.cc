@@ -468,7 +468,9 @@ TEST_F(EngineOnTheDemoLamp, SigmaIsItsComponentsAndRepeatedRunsAgreeWithinIt) {
 // (Beckmann 0.493) and its fit give the bench's throughput; the ground glass's plan is then
 // priced from its catalogue width (0.344) through it, and measured on a bench with the ground
 // glass in it. The estimate's exposure time (frames, ranging tries, darks) must be within 30 % of
-// the engine's; the plan's initial exposure, the only basis before, is far off.
+// the engine's; the plan's initial exposure, the only basis before, is far off. Then an adaptive
+// plan of the ground glass with a target: its estimate simulates it (point_bench.h,
+// ForecastAdaptive) on the etched run's calibration, and must be within 30 % of the run too.
 TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSpecimen) {
   const std::string db_path = (std::filesystem::temp_directory_path() /
                                ("gonio_estimate_" + std::to_string(::getpid()) + ".sqlite"))
@@ -481,8 +483,9 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
                                            {"ground-glass-G1", "glass", 6, 1.51, 0.344}};
   const EngineOptions eo{.linear_limit_adu = 65000};
   // The demo's geometry, coarser: 0 and 45 degrees, the lobe and its tails.
-  auto plan_for = [&](const std::string& specimen, const std::vector<devices::AxisSettings>& axes)
-      -> std::pair<Plan, std::vector<PlannedPoint>> {
+  auto plan_for = [&](const std::string& specimen, const std::vector<devices::AxisSettings>& axes,
+                      const std::string& strategy =
+                          "") -> std::pair<Plan, std::vector<PlannedPoint>> {
     const std::string path = db_path + ".plan.toml";
     std::ofstream(path) << "sample = \"" << specimen << "\"\n[geometry]\nincidence_deg = [0, 45]\n"
                         << "view_about = \"refracted\"\nview_from_deg = -50\nview_to_deg = 50\n"
@@ -490,7 +493,8 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
                         << "max_s = 20\n[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n"
                         // The engine ages darks by the wall clock, which the simulated bench's
                         // runs 300 times slower than its own: no dark expires in a test run.
-                        << "[darks]\nmax_age_s = 100000\n";
+                        << "[darks]\nmax_age_s = 100000\n"
+                        << strategy;
     PlanContext ctx;
     ctx.specimens = catalogue;
     ctx.axes = axes;
@@ -501,17 +505,18 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
     return {*plan, ExpandPoints(*plan, ctx)};
   };
   auto measure = [&](gonio::testing::SimInstrument& inst, const Plan& plan,
-                     const std::vector<PlannedPoint>& points) -> std::pair<std::int64_t, double> {
+                     const std::vector<PlannedPoint>& points,
+                     const EngineOptions& options) -> std::pair<std::int64_t, double> {
     // As goniod does: the estimate is made and kept when the run is created.
-    auto estimate =
-        EstimateRun(*store, plan, points, inst.axes, eo.linear_limit_adu, eo.max_ranging_tries);
+    auto estimate = EstimateRun(*store, plan, points, inst.axes, options.linear_limit_adu,
+                                options.max_ranging_tries);
     EXPECT_TRUE(estimate.ok());
     auto sp = store->EnsureSpecimen(plan.specimen);
     auto cfg = store->StoreConfig("test");
     auto run = store->CreateRun(*sp, *cfg, plan.text, points);
     EXPECT_TRUE(run.ok());
     EXPECT_TRUE(store->SetRunEstimate(*run, *estimate).ok());
-    Engine engine(*inst.stages, *inst.camera, inst.meter, *store, eo);
+    Engine engine(*inst.stages, *inst.camera, inst.meter, *store, options);
     std::atomic<bool> stop{false};
     const Status st = gonio::testing::RunResuming(engine, *run, plan, stop);
     EXPECT_TRUE(st.ok()) << st.error().message;
@@ -526,7 +531,7 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
     o.truth = sim::MicrofacetTruth("beckmann", 0.493, 1.51);
     ASSERT_TRUE(inst.Start(o).ok());
     auto [plan, points] = plan_for("etched-glass-E1", inst.axes);
-    const auto [run, exposed_s] = measure(inst, plan, points);
+    const auto [run, exposed_s] = measure(inst, plan, points, eo);
     ASSERT_GT(exposed_s, 0);
     auto rows = store->Measurements(run);
     ASSERT_TRUE(rows.ok());
@@ -564,7 +569,7 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
   const auto measured_points =
       std::count_if(points.begin(), points.end(), [](const PlannedPoint& p) { return !p.skipped; });
   EXPECT_EQ(priced.from_forecast, measured_points);
-  const auto [run, exposed_s] = measure(inst, plan, points);
+  const auto [run, exposed_s] = measure(inst, plan, points, eo);
   // The run keeps its estimate beside what its points took, which adds up to the engine's count.
   auto info = store->GetRun(run);
   ASSERT_TRUE(info.ok());
@@ -582,6 +587,33 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
       100 * (naive.exposure_s / exposed_s - 1));
   EXPECT_NEAR(priced.exposure_s / exposed_s, 1.0, 0.3);
   EXPECT_LT(naive.exposure_s / exposed_s, 0.3) << "the old basis was not far off: a weak test";
+
+  {  // An adaptive plan of the ground glass, forecast by simulating it on a point bench calibrated
+     // on the etched glass's run (its throughput and its points' sigmas), then run to its target
+     // on the same bench (one simulated camera per machine).
+    auto [aplan, apoints] = plan_for("ground-glass-G1", inst.axes,
+                                     "[strategy]\nkind = \"adaptive\"\nbudget_s = 20000\n"
+                                     "target_rel_sigma_alpha = 5e-5\n");
+    EngineOptions with_axes = eo;
+    with_axes.axes = inst.axes;  // the planner prices moves, as goniod configures it
+    const auto [arun, aexposed_s] = measure(inst, aplan, apoints, with_axes);
+    auto ainfo = store->GetRun(arun);
+    ASSERT_TRUE(ainfo.ok() && ainfo->estimate && ainfo->exposed_s);
+    auto events = store->Events(arun);
+    ASSERT_TRUE(events.ok());
+    std::string outcome;
+    for (const RunEvent& e : *events)
+      if (e.kind == "adaptive") outcome = e.detail;
+    std::printf("adaptive run: %s; %s\n", outcome.c_str(),
+                DescribeExposureAgainstEstimate(*ainfo).c_str());
+    EXPECT_EQ(outcome.rfind("reached sigma(alpha)/alpha", 0), 0u) << outcome;
+    EXPECT_NE(ainfo->estimate->basis.find("20 simulated runs"), std::string::npos)
+        << ainfo->estimate->basis;
+    // The criterion, on what the run's points took (as for the uniform plan above); the
+    // budget, the estimate before, is 60 times the run.
+    EXPECT_NEAR(ainfo->estimate->exposure_s / *ainfo->exposed_s, 1.0, 0.3);
+    EXPECT_LT(ainfo->estimate->total_s, aplan.strategy.budget_s / 10);
+  }
   store.reset();
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(db_path + ext);
 }

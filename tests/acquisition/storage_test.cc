@@ -204,6 +204,12 @@ TEST_F(StorageTest, TheBenchsThroughputComesFromAFinishedRunWithAChosenFit) {
   EXPECT_DOUBLE_EQ((*t)->floor, 0.25);
   EXPECT_NEAR((*t)->adu_per_value, 3.2, 1e-9);
   EXPECT_DOUBLE_EQ((*t)->dark_adu, 500);
+  // The points' sigmas calibrate the bench's noise per frame: each is 0.1 at 4 frames of 0.5 s
+  // whatever its value, read noise alone: 0.1^2 x 4 frames x (0.5 s)^2.
+  ASSERT_TRUE((*t)->noise.has_value());
+  EXPECT_NEAR((*t)->noise->read, 0.01, 1e-9);
+  EXPECT_NEAR((*t)->noise->shot, 0, 1e-9);
+  EXPECT_NEAR((*t)->noise->lamp, 0, 1e-9);
 }
 
 TEST_F(StorageTest, ExportIsReadByTheFittersCsvReader) {

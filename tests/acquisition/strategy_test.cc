@@ -332,5 +332,107 @@ TEST(Strategy, AnAdaptiveRunStopsAtItsTargetOrAtItsBudgetAndSaysWhich) {
   EXPECT_LT(b->spent_s, 1e5);
 }
 
+// A batch ends at the first choice predicted to reach the target (holding at least `batch`):
+// the run spends nothing past what its target needs, by its own prediction.
+TEST(Strategy, ABatchEndsWhereItsPredictionReachesTheTarget) {
+  Plan plan = PointBenchPlan(1, "adaptive");
+  plan.strategy.budget_s = 1e6;
+  plan.strategy.target_rel_sigma_alpha = 2e-5;
+  std::vector<PlannedPoint> points = ExpandGrid(plan, PlanContext{});
+  SelectByStrategy(plan, &points);
+  PointBench bench(PointBenchOptions{});
+  std::vector<Observation> seen;
+  for (const PlannedPoint& p : points)
+    if (!p.skipped) seen.push_back(bench.Measure(p, CoarseExposure(plan)));
+  int trimmed = 0;
+  auto outcome = RunAdaptive(
+      plan, points, seen,
+      [&](const std::vector<Choice>& batch) -> Result<std::vector<Observation>> {
+        // In the order of choice (the batch is in the grid's order): the first that reaches it.
+        std::vector<Choice> chosen = batch;
+        std::sort(chosen.begin(), chosen.end(), [](const Choice& a, const Choice& b) {
+          return a.rel_sigma_after > b.rel_sigma_after;  // sigma only falls as choices are added
+        });
+        const auto first = std::find_if(chosen.begin(), chosen.end(), [&](const Choice& c) {
+          return c.rel_sigma_after <= plan.strategy.target_rel_sigma_alpha;
+        });
+        if (first != chosen.end()) {
+          const auto needed =
+              std::max<std::ptrdiff_t>(first - chosen.begin() + 1, plan.strategy.batch);
+          EXPECT_EQ(static_cast<std::ptrdiff_t>(batch.size()), needed);
+          ++trimmed;
+        }
+        std::vector<Observation> out;
+        for (const Choice& c : batch) out.push_back(bench.Measure(c.point, plan.exposure));
+        return out;
+      });
+  ASSERT_TRUE(outcome.ok()) << outcome.error().message;
+  EXPECT_EQ(outcome->stop, AdaptiveOutcome::Stop::kTarget) << outcome->message;
+  EXPECT_GE(trimmed, 1) << "no batch was predicted to reach the target: the test shows nothing";
+}
+
+// The estimate before a specimen's first adaptive run (issue #17): the bench's noise and
+// throughput calibrated on a run of another specimen (etched glass, a uniform 2 deg grid), the
+// new specimen's catalogue lobe, and the plan simulated to its target. The forecast is checked
+// against runs on the true bench, which the forecast never sees.
+TEST(Strategy, AnAdaptivePlansForecastFromAnotherSpecimensRunPredictsItsTime) {
+  PointBenchOptions truth;
+  truth.readout_s = 0;  // the stored bench time has none
+  truth.seed = 7;
+  truth.alpha = 0.493;
+  Plan etched = PointBenchPlan(2, "uniform");
+  etched.exposure.frames = 4;
+  PointBench first(truth);
+  std::vector<Observation> seen;
+  for (const PlannedPoint& p : ExpandGrid(etched, PlanContext{}))
+    if (!p.skipped) seen.push_back(first.Measure(p, etched.exposure));
+  auto fit = FitSeen(seen, 1.51);
+  ASSERT_TRUE(fit.ok()) << fit.error().message;
+  auto noise = CalibrateFrameNoise(seen);
+  ASSERT_TRUE(noise.ok()) << noise.error().message;
+  // Per frame, the rectangle's shot noise is 1 / (electrons per value per second x pixels) and the
+  // lamp's flicker its square: the calibration finds the bench's own.
+  EXPECT_NEAR(noise->shot * truth.electrons_per_s_per_value * truth.pixels, 1, 0.25);
+  EXPECT_NEAR(std::sqrt(noise->lamp) / truth.flicker_rms, 1, 0.25);
+  Throughput bench;
+  bench.scale = fit->scale.value;
+  bench.floor = fit->floor.value;
+  bench.adu_per_value = truth.electrons_per_s_per_value / truth.gain_e_per_adu;
+  bench.noise = *noise;
+  const LobeForecast lobe{bench, 0.344, 1.51, truth.full_well_e / truth.gain_e_per_adu, 12};
+
+  Plan plan = PointBenchPlan(1, "adaptive");
+  plan.exposure.frames = 4;
+  plan.strategy.budget_s = 20000;
+  plan.strategy.target_rel_sigma_alpha = 2e-5;
+  const std::vector<PlannedPoint> grid = ExpandGrid(plan, PlanContext{});
+  auto forecast = ForecastAdaptive(plan, grid, BenchLike(lobe, *noise, {}), 20);
+  ASSERT_TRUE(forecast.ok()) << forecast.error().message;
+  EXPECT_EQ(forecast->failed, 0);
+  EXPECT_GE(forecast->reached, 18) << forecast->Describe();
+  EXPECT_LE(forecast->low_s, forecast->median_s);
+  EXPECT_LE(forecast->median_s, forecast->high_s);
+  EXPECT_LT(forecast->exposure_median_s, forecast->median_s);
+  EXPECT_NE(forecast->Describe().find("simulated runs"), std::string::npos);
+
+  std::vector<double> actual;
+  int near = 0;
+  truth.alpha = 0.344;
+  for (int r = 0; r < 20; ++r) {
+    truth.seed = 500 + static_cast<std::uint64_t>(r);
+    auto run = SimulateRun(plan, grid, truth);
+    ASSERT_TRUE(run.ok()) << run.error().message;
+    actual.push_back(run->spent_s);
+    // The range is the simulated runs' spread, not the forecast's own error (which the median's
+    // check bounds): a run counts as near it within 30 % of its ends.
+    if (run->spent_s >= 0.7 * forecast->low_s && run->spent_s <= 1.3 * forecast->high_s) ++near;
+  }
+  // The issue's criterion (within 30 %); the budget, which was the estimate before, is far off.
+  EXPECT_NEAR(Median(actual) / forecast->median_s, 1, 0.3)
+      << "actual " << Median(actual) << " s; " << forecast->Describe();
+  EXPECT_GE(near, 18) << "of 20 runs near the forecast's 10-90 % range; " << forecast->Describe();
+  EXPECT_LT(forecast->high_s, plan.strategy.budget_s / 2);
+}
+
 }  // namespace
 }  // namespace gonio::acquisition

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <thread>
 
 namespace gonio::backends {
@@ -472,15 +473,31 @@ Result<Frame> AravisCamera::Snap() {
   const bool silent =
       !f.ok() && f.error().code == ErrorCode::kTimeout && problem.rfind("no frame", 0) == 0;
   if (silent) {
-    if (Status s = Reopen("every attempt silent: " + problem); !s.ok()) return s.error();
+    const std::string seen = StreamCounters();  // the old stream's, before the reopen
+    if (Status s = Reopen("every attempt silent: " + problem + " (" + seen + ")"); !s.ok())
+      return s.error();
     f = SnapOnce(s_.retries + 2, &problem);
-    if (f.ok()) f->retried_because += " (every attempt; then reopened)";
+    if (f.ok()) f->retried_because += " (every attempt; then reopened; " + seen + ")";
   }
   if (f.ok() || f.error().code != ErrorCode::kTimeout) return f;
   const bool incomplete = problem.find("incomplete") != std::string::npos;
   return Error{incomplete ? ErrorCode::kDeviceFault : ErrorCode::kTimeout,
                "camera " + s_.address + ": " + problem + " (after " + std::to_string(s_.retries) +
                    " retries" + (silent ? " and a reopen)" : ")")};
+}
+
+std::string AravisCamera::StreamCounters() const {
+  if (stream_ == nullptr) return "no stream";
+  auto n = [&](const char* name) {
+    return static_cast<unsigned long long>(arv_stream_get_info_uint64_by_name(stream_, name));
+  };
+  char text[256];
+  std::snprintf(text, sizeof text,
+                "the stream had completed %llu frames, received %llu packets and ignored %llu, "
+                "missed %llu frames, %llu underruns, %llu timeouts",
+                n("n_completed_buffers"), n("n_received_packets"), n("n_ignored_packets"),
+                n("n_missing_frames"), n("n_underruns"), n("n_timeouts"));
+  return text;
 }
 
 Result<double> AravisCamera::TemperatureC() {

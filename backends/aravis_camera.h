@@ -65,6 +65,10 @@ class AravisCamera final : public Camera {
   // Drains stale frames and triggers one. kBusy: every buffer is held by earlier Frames; kIo: the
   // trigger was not accepted (the camera may have gone).
   Status Trigger();
+  // What the stream has seen since it was opened (Aravis's counters: frames completed, packets
+  // received and ignored, missing frames, underruns, timeouts): said when every attempt was
+  // silent, so that a log tells a camera that sent nothing from frames the stream threw away.
+  std::string StreamCounters() const;
   // A popped buffer as a Frame; on error the buffer goes back to the pool. kDeviceFault: it
   // arrived incomplete; kProtocol: smaller than its image.
   Result<Frame> Wrap(_ArvBuffer* b, int attempt);

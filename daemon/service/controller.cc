@@ -551,15 +551,12 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     job.run = *run;
     SaveJob(job);  // a restart finds the run through its job
     // What it is expected to cost, kept beside what it will cost (issue #17). An estimate that
-    // cannot be made does not stop the run. An adaptive plan's simulates its runs (seconds):
-    // status requests are answered meanwhile.
-    lock.unlock();
+    // cannot be made does not stop the run. An adaptive plan's simulates its runs (a second or
+    // a few), under the lock: released here, status would say idle with a job in hand.
     if (auto e = acquisition::EstimateRun(db_, *plan, points, context_.axes,
                                           o_.engine.linear_limit_adu, o_.engine.max_ranging_tries);
         e.ok())
       (void)db_.SetRunEstimate(*run, *e);
-    lock.lock();
-    if (shutdown_) return;  // the run stays planned, its job saved: the next start resumes it
     if (!plan->rectangle_reason.empty())
       (void)db_.AddEvent(*run, "rectangle", plan->rectangle_reason);
   }

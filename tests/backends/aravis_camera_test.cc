@@ -135,6 +135,10 @@ TEST_F(CameraDriver, FramesThatNeverComeGiveATimeoutAfterTheRetries) {
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, ErrorCode::kTimeout);
   EXPECT_NE(r.error().message.find("after 1 retries"), std::string::npos) << r.error().message;
+  // The reopen says what the stream saw: a camera that sent nothing, not frames thrown away.
+  EXPECT_NE(cam->LastReconnectionCause().find("completed 0 frames, received 0 packets"),
+            std::string::npos)
+      << cam->LastReconnectionCause();
 }
 
 TEST_F(CameraDriver, ACameraThatWentAwayIsReopened) {

@@ -70,6 +70,10 @@ double Median(std::vector<double> v) {
 // relative terms (every row divided by its sigma^2) over each subset of the terms; the best
 // subset whose coefficients are all >= 0 wins (a non-negative least squares on three unknowns).
 Result<FrameNoise> FitNoiseTerms(const std::vector<const Observation*>& use, bool per_frame) {
+  if (use.size() < 3)
+    return Error{ErrorCode::kFailedPrecondition,
+                 "the noise model needs 3 measured points with signal, and there are " +
+                     std::to_string(use.size())};
   auto variance = [&](const Observation& o) {
     return o.sigma * o.sigma * (per_frame ? std::max(1, o.frames) : 1);
   };
@@ -204,10 +208,8 @@ Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
     m.clock_s += o.cost_s;
   }
   const std::vector<const Observation*> use = WithSignal(seen);
-  if (use.size() < 3)
-    return Error{ErrorCode::kFailedPrecondition,
-                 "the noise model needs 3 measured points with signal, and there are " +
-                     std::to_string(use.size())};
+  auto terms = FitNoiseTerms(use, /*per_frame=*/false);  // first: it says what is missing
+  if (!terms.ok()) return terms.error();
   std::vector<double> fills, overheads;
   for (const Observation& o : seen)
     overheads.push_back(std::max(0.0, o.cost_s - o.frames * o.exposure_s));
@@ -219,19 +221,12 @@ Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
     return Error{ErrorCode::kFailedPrecondition,
                  "the noise model needs the points' levels (their fraction of the linear range)"};
   m.fill = Median(fills);
-  auto terms = FitNoiseTerms(use, /*per_frame=*/false);
-  if (!terms.ok()) return terms.error();
   m.shot = terms->shot, m.read = terms->read, m.lamp = terms->lamp;
   return m;
 }
 
 Result<FrameNoise> CalibrateFrameNoise(const std::vector<Observation>& seen) {
-  const std::vector<const Observation*> use = WithSignal(seen);
-  if (use.size() < 3)
-    return Error{ErrorCode::kFailedPrecondition,
-                 "the noise model needs 3 measured points with signal, and there are " +
-                     std::to_string(use.size())};
-  return FitNoiseTerms(use, /*per_frame=*/true);
+  return FitNoiseTerms(WithSignal(seen), /*per_frame=*/true);
 }
 
 double Provisional::Value(const PlannedPoint& p) const {

@@ -261,6 +261,14 @@ Result<Measurement> Engine::Complete(Exposed& e) {
   auto m = Reduce(e);
   if (!m.ok()) return m;
   if (Status s = db_.StoreMeasurement(run_, *m); !s.ok()) return s.error();
+  if (const int stale = camera_.StaleFrames(); stale != stale_frames_) {
+    (void)db_.AddEvent(run_, "camera",
+                       "point " + std::to_string(e.point.index) + ": " +
+                           std::to_string(stale - stale_frames_) +
+                           " frame(s) exposed before their trigger (late frames of an earlier "
+                           "one) were refused; the point's frames are its own");
+    stale_frames_ = stale;
+  }
   return m;
 }
 
@@ -303,6 +311,7 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
 Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
                          const std::function<void(const Progress&)>& progress) {
   run_ = run;
+  stale_frames_ = camera_.StaleFrames();  // counted per run
   auto info = db_.GetRun(run);
   if (!info.ok()) return info.error();
   monitor_reference_ = info->monitor_reference_w;  // a resumed run keeps its reference

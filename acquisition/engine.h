@@ -139,6 +139,7 @@ class Engine {
   Storage& db_;
   EngineOptions o_;
   std::int64_t run_ = 0;
+  int stale_frames_ = 0;  // camera_.StaleFrames() when the last stored point was logged
   std::optional<double> monitor_reference_;
   double last_exposure_s_ = 0;
   std::map<std::int64_t, DarkRecord> darks_;  // by exposure in microseconds

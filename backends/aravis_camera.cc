@@ -14,6 +14,15 @@ namespace gonio::backends {
 namespace {
 
 constexpr guint64 kGevHeartbeatTimeout = 0x0938;  // GigE Vision bootstrap register, ms
+// GigE Vision bootstrap timestamp registers (GigE Vision 2.0, section 28): tick frequency (64
+// bits, high word first), Timestamp Control (write-only; bit 30, value 2, latches the counter)
+// and the latched value (64 bits, high word first).
+constexpr guint64 kGevTimestampTickFrequencyHigh = 0x093C;
+constexpr guint64 kGevTimestampTickFrequencyLow = 0x0940;
+constexpr guint64 kGevTimestampControl = 0x0944;
+constexpr guint32 kGevTimestampLatch = 2;
+constexpr guint64 kGevTimestampValueHigh = 0x0948;
+constexpr guint64 kGevTimestampValueLow = 0x094C;
 
 // Turns a GError into an Error (and frees it); nullptr: success.
 Status Check(GError* e, const std::string& what, ErrorCode code = ErrorCode::kIo) {
@@ -134,6 +143,24 @@ Status AravisCamera::ConnectSteps() {
                               static_cast<guint32>(std::lround(s_.heartbeat_timeout_s * 1000)), &e);
     if (Status s = Check(e, "camera " + s_.address + ": GevHeartbeatTimeout"); !s.ok()) return s;
     control_lost_ = false;
+    // Frames are paired with triggers by the camera's clock where it can latch it: a frame
+    // stamped before the latch taken just ahead of its trigger belongs to an earlier trigger
+    // (issue notes, stops 25-27: on a loaded host a late frame left every later one a trigger
+    // behind). A camera whose latch reads back unchanged is paired by order alone.
+    guint32 fh = 0, fl = 0;
+    arv_device_read_register(dev, kGevTimestampTickFrequencyHigh, &fh, &e);
+    if (e == nullptr) arv_device_read_register(dev, kGevTimestampTickFrequencyLow, &fl, &e);
+    g_clear_error(&e);
+    const double hz = static_cast<double>((static_cast<std::uint64_t>(fh) << 32) | fl);
+    stamps_ = false;
+    if (hz > 0) {
+      ns_per_tick_ = 1e9 / hz;
+      auto before = ReadLatched();
+      if (before.ok()) {
+        latched_ticks_ = *before;
+        stamps_ = LatchTimestamp(0.5).ok();
+      }
+    }
     g_signal_connect(dev, "control-lost", G_CALLBACK(+[](ArvGvDevice*, gpointer self) {
                        static_cast<AravisCamera*>(self)->control_lost_ = true;
                      }),
@@ -152,7 +179,7 @@ Status AravisCamera::ConnectSteps() {
   arv_camera_start_acquisition(camera_, &e);
   if (Status s = Check(e, "camera " + s_.address + ": AcquisitionStart"); !s.ok()) return s;
   // A frame that was already on its way (sent when acquisition restarted) is let arrive and
-  // drained here, not taken for the first trigger's.
+  // drained here, not taken for the first trigger's (without timestamps, the only guard).
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
   while (ArvBuffer* old = arv_stream_try_pop_buffer(stream_)) arv_stream_push_buffer(stream_, old);
   return OkStatus();
@@ -258,8 +285,12 @@ _ArvBuffer* AravisCamera::PopFrame(double wait_s) {
   // A buffer handed back still CLEARED never received a packet: it holds no frame, not even a
   // failed one (Aravis occasionally returns one at once on a loaded machine). It goes back to the
   // pool and the wait for this trigger's frame goes on, so that frames and triggers stay paired.
+  // A frame of an earlier trigger (Stale) goes back too; this trigger's exposure cannot have
+  // begun before that one ended, so the wait starts again from its arrival.
   // The wait is sliced so that an interrupt (a daemon stopping) is seen within 50 ms.
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_s);
+  const auto span = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double>(wait_s));
+  auto deadline = std::chrono::steady_clock::now() + span;
   while (true) {
     const double left =
         std::chrono::duration<double>(deadline - std::chrono::steady_clock::now()).count();
@@ -267,9 +298,66 @@ _ArvBuffer* AravisCamera::PopFrame(double wait_s) {
     ArvBuffer* b =
         arv_stream_timeout_pop_buffer(stream_, static_cast<guint64>(std::min(left, 0.05) * 1e6));
     if (b == nullptr) continue;
-    if (b == nullptr || arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) return b;
+    if (Stale(b)) {
+      ++stale_frames_;
+      deadline = std::max(deadline, std::chrono::steady_clock::now() + span);
+    } else if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) {
+      return b;
+    }
     arv_stream_push_buffer(stream_, b);
   }
+}
+
+Result<std::uint64_t> AravisCamera::ReadLatched() {
+  // The value is two registers read one after the other: a latch landing between the reads
+  // gives one word of each (seen on the simulator, whose firmware latches a moment after the
+  // write). Read until two reads agree.
+  ArvDevice* dev = arv_camera_get_device(camera_);
+  auto once = [&]() -> Result<std::uint64_t> {
+    GError* e = nullptr;
+    guint32 hi = 0, lo = 0;
+    arv_device_read_register(dev, kGevTimestampValueHigh, &hi, &e);
+    if (e == nullptr) arv_device_read_register(dev, kGevTimestampValueLow, &lo, &e);
+    if (Status s = Check(e, "camera " + s_.address + ": GevTimestampValue"); !s.ok())
+      return s.error();
+    return (static_cast<std::uint64_t>(hi) << 32) | lo;
+  };
+  auto last = once();
+  for (int k = 0; k < 8 && last.ok(); ++k) {
+    auto again = once();
+    if (!again.ok() || *again == *last) return again;
+    last = again;
+  }
+  if (!last.ok()) return last;
+  return Error{ErrorCode::kIo, "camera " + s_.address + ": GevTimestampValue does not hold still"};
+}
+
+Status AravisCamera::LatchTimestamp(double wait_s) {
+  ArvDevice* dev = arv_camera_get_device(camera_);
+  GError* e = nullptr;
+  arv_device_write_register(dev, kGevTimestampControl, kGevTimestampLatch, &e);
+  if (Status s = Check(e, "camera " + s_.address + ": GevTimestampControl latch"); !s.ok())
+    return s;
+  const auto t0 = std::chrono::steady_clock::now();
+  for (;;) {
+    auto v = ReadLatched();
+    if (!v.ok()) return v.error();
+    if (*v != latched_ticks_) {
+      latched_ticks_ = *v;
+      not_before_ns_ = static_cast<std::uint64_t>(static_cast<double>(*v) * ns_per_tick_);
+      return OkStatus();
+    }
+    if (Seconds(t0) > wait_s)
+      return Error{ErrorCode::kTimeout, "camera " + s_.address +
+                                            ": the timestamp latch did not change within " +
+                                            std::to_string(wait_s) + " s"};
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+}
+
+bool AravisCamera::Stale(ArvBuffer* b) const {
+  return stamps_ && arv_buffer_get_status(b) == ARV_BUFFER_STATUS_SUCCESS &&
+         arv_buffer_get_timestamp(b) < not_before_ns_;
 }
 
 Status AravisCamera::Trigger() {
@@ -290,6 +378,12 @@ Status AravisCamera::Trigger() {
   if (free_buffers == 0)
     return Error{ErrorCode::kBusy, "camera " + s_.address + ": all " + std::to_string(s_.buffers) +
                                        " frame buffers are held by earlier Frames; release one"};
+  // The latch comes after everything this frame depends on (exposure, stage angles) is set, so
+  // a frame exposed from it on sees them. A latch the camera does not take in time is a camera
+  // that no longer answers as it did: the caller reopens it.
+  if (stamps_)
+    if (Status s = LatchTimestamp(s_.frame_timeout_s); !s.ok())
+      return Error{ErrorCode::kIo, s.error().message};
   GError* e = nullptr;
   arv_camera_software_trigger(camera_, &e);
   return Check(e, "TriggerSoftware failed");
@@ -434,7 +528,9 @@ Status AravisCamera::Expose() {
       return OkStatus();
     }
     if (ArvBuffer* b = arv_stream_try_pop_buffer(stream_)) {
-      if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) {
+      if (Stale(b)) {
+        ++stale_frames_;
+      } else if (arv_buffer_get_status(b) != ARV_BUFFER_STATUS_CLEARED) {
         early_ = b;
         return OkStatus();
       }

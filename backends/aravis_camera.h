@@ -6,6 +6,14 @@
 // exposure that begins and ends between two reads (under about a millisecond) looks the same as
 // one not yet begun: Expose() then returns when its frame arrives, with nothing overlapped. An
 // SFNC counter of exposure ends would remove that case; it is not used yet.
+//
+// Frames and triggers are paired by the camera's clock where the camera can latch it (GigE Vision
+// bootstrap Timestamp Control): the driver latches the counter just before each trigger, after
+// the exposure and the stages are set, and refuses a frame stamped earlier as an earlier
+// trigger's, however late it arrives. Any stamping convention (exposure start, end or readout)
+// keeps that rule sound: a frame stamped before the latch began before it. Elsewhere (USB3
+// Vision, a camera whose latch reads back unchanged) frames are paired by order: stale frames
+// drained before each trigger, and a reopen aborting what the camera holds.
 #pragma once
 
 #include <atomic>
@@ -47,6 +55,11 @@ class AravisCamera final : public Camera {
   Status CoolAndWait(const TemperatureWait& w) override;
 
   int reopens() const { return reopens_; }
+  // Whether frames are checked against their trigger by the camera's timestamp (GigE Vision
+  // cameras whose latch works), and how many frames the check has refused as exposed before
+  // their trigger's latch (stale frames of an earlier trigger).
+  bool ChecksFrameStamps() const { return stamps_; }
+  int StaleFrames() const override { return stale_frames_; }
   int Reconnections() const override { return reopens_; }
   std::string LastReconnectionCause() const override;
 
@@ -60,10 +73,20 @@ class AravisCamera final : public Camera {
   // Disconnect, Connect, restore the exposure; counts reopens_ and keeps `cause` for the log.
   Status Reopen(const std::string& cause);
   Status Configure();
-  // This trigger's frame (any status but CLEARED) within wait_s, or null.
+  // This trigger's frame (any status but CLEARED, not Stale) within wait_s of the trigger or of
+  // the last stale frame, or null.
   _ArvBuffer* PopFrame(double wait_s);
-  // Drains stale frames and triggers one. kBusy: every buffer is held by earlier Frames; kIo: the
-  // trigger was not accepted (the camera may have gone).
+  // GigE Vision timestamp latch (bootstrap 0x0944) and read of the latched value (0x0948/0x094C),
+  // waiting up to wait_s for a value other than latched_ticks_ (a camera whose firmware latches
+  // after the write's acknowledgement shows the old value for a moment). Sets latched_ticks_.
+  Status LatchTimestamp(double wait_s);
+  Result<std::uint64_t> ReadLatched();
+  // Whether a buffer that arrived is one of an earlier trigger: stamped before this trigger's
+  // latch (only with stamps_, and only complete frames: an incomplete one may have lost its
+  // leader, and is retried anyway).
+  bool Stale(_ArvBuffer* b) const;
+  // Drains stale frames, latches the timestamp (stamps_) and triggers one. kBusy: every buffer is
+  // held by earlier Frames; kIo: the trigger was not accepted (the camera may have gone).
   Status Trigger();
   // What the stream has seen since it was opened (Aravis's counters: frames completed, packets
   // received and ignored, missing frames, underruns, timeouts): said when every attempt was
@@ -92,7 +115,14 @@ class AravisCamera final : public Camera {
   // Set by Aravis's heartbeat thread when the camera no longer grants us control (it stops
   // streaming then): the next trigger reopens at once instead of waiting out silent frames.
   std::atomic<bool> control_lost_{false};
-  bool reports_end_ = false;          // the status feature exists (Connect)
+  bool reports_end_ = false;  // the status feature exists (Connect)
+  // Frame/trigger pairing by the camera's clock (Connect): the latch works; the latched counter,
+  // its tick length, and the earliest frame stamp (ns, as Aravis reports it) this trigger accepts.
+  bool stamps_ = false;
+  std::uint64_t latched_ticks_ = 0;
+  double ns_per_tick_ = 1;
+  std::uint64_t not_before_ns_ = 0;
+  std::atomic<int> stale_frames_{0};
   devices::CameraCapabilities caps_;  // what the node map has of the config's features (Connect)
   bool exposed_ = false;         // Expose() has triggered a frame that Retrieve() has not taken
   _ArvBuffer* early_ = nullptr;  // that frame, when it arrived before the exposure's end was seen

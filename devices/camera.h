@@ -144,6 +144,11 @@ class Camera {
   // Why the camera was last opened again ("no frame within 5.1 s", "control lost ..."); empty
   // before the first. For the run's log: a reconnection that costs a point says what caused it.
   virtual std::string LastReconnectionCause() const { return {}; }
+  // How many frames arrived that the camera's clock showed were exposed before the trigger
+  // they would have answered (a late frame of an earlier trigger), and were refused. A count that
+  // grows says the host or the link was slow enough to leave a frame behind; the frames kept are
+  // still their triggers'. 0 for a camera that cannot tell.
+  virtual int StaleFrames() const { return 0; }
 
   // Once *flag reads true, a Snap, Expose or Retrieve in progress (or begun) ends within about
   // 0.1 s with kAborted: the exposure is stopped (AcquisitionStop) and the camera left ready for

@@ -117,6 +117,8 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_GAIN_RAW, 0);
   // The fake camera itself always waits for a software trigger: the firmware gives it one when
   // a frame is ready, whatever the client's TriggerMode. It looks for one every millisecond.
+  cam->SetReg(camera_reg::kTimestampTickFrequencyHigh, 0);
+  cam->SetReg(camera_reg::kTimestampTickFrequencyLow, 1000000000);
   cam->SetReg(kFakeTriggerMode, 1);
   cam->SetReg(kFakeTriggerSource, 1);
   arv_fake_camera_set_trigger_frequency(fake, 1000.0);
@@ -154,6 +156,20 @@ std::uint32_t SimulatedCamera::HeartbeatTimeoutMs() const {
 void SimulatedCamera::DropControl() {
   std::lock_guard lock(mu_);
   SetReg(camera_reg::kControlChannelPrivilege, 0);
+}
+
+void SimulatedCamera::StrayTrigger() {
+  std::lock_guard lock(mu_);
+  SetReg(camera_reg::kTriggerSoftware, 1);
+}
+
+bool SimulatedCamera::Exposing() const {
+  std::lock_guard lock(mu_);
+  return integrating_;
+}
+
+std::uint64_t SimulatedCamera::Ticks(double t) const {
+  return static_cast<std::uint64_t>(std::llround(std::max(0.0, t - timestamp_zero_) * 1e9));
 }
 
 void SimulatedCamera::DropFrames(int n) {
@@ -239,6 +255,19 @@ void SimulatedCamera::Step(double now) {
                                  std::lround(cooler_.Temperature(now) * 1000))));
   SetReg(kCoolingPower, static_cast<std::uint32_t>(std::lround(cooler_.PowerPercent(now) * 1000)));
 
+  // Timestamp Control (GigE Vision bootstrap 0x0944): a write-only command the firmware clears.
+  // Reset before latch when both are written; taken before the trigger below, so a frame whose
+  // exposure starts in this step is stamped no earlier than a latch taken in it.
+  if (const std::uint32_t ts = Reg(kTimestampControl); ts != 0) {
+    SetReg(kTimestampControl, 0);
+    if ((ts & 1u) != 0) timestamp_zero_ = now;
+    if ((ts & 2u) != 0) {
+      const std::uint64_t t = Ticks(now);
+      SetReg(kTimestampValueHigh, static_cast<std::uint32_t>(t >> 32));
+      SetReg(kTimestampValueLow, static_cast<std::uint32_t>(t & 0xffffffffu));
+    }
+  }
+
   // AcquisitionAbort (SFNC): a latch the firmware clears, so that an abort written between two
   // steps is never missed (a stop and a start written back to back can be). The exposure or
   // readout in hand ends and its frame is not sent; a trigger written after the abort stays.
@@ -266,7 +295,13 @@ void SimulatedCamera::Step(double now) {
     return;
   }
   acquiring_ = true;
-  if (ready_frame_) return;  // waiting for Aravis to send the last one
+  if (ready_frame_) {  // held back (frame_late), or waiting for Aravis to send it
+    if (!handed_ && now >= ready_at_) {
+      SetReg(kFakeTriggerSoftware, 1);
+      handed_ = true;
+    }
+    return;
+  }
   if (!exposing_ && (Reg(kTriggerMode) == 0 || Reg(kTriggerSoftware) != 0)) {
     SetReg(kTriggerSoftware, 0);
     exposing_ = integrating_ = true;
@@ -299,7 +334,13 @@ void SimulatedCamera::Step(double now) {
     losing_packets_ = lose;
   }
   ready_frame_ = Shoot(angles_at_start_, angles_at_end_, exposure_start_, exposure_s_);
-  SetReg(kFakeTriggerSoftware, 1);
+  ready_stamp_ = Ticks(exposure_start_);
+  // A late frame (a stalled link or a busy camera) is held; a trigger written meanwhile waits
+  // for it to leave, as the trigger of any frame in hand does.
+  const auto late = MaybeFire(faults_, FaultKind::kFrameLate, "camera", now);
+  ready_at_ = now + (late ? late->duration_s : 0.0);
+  handed_ = now >= ready_at_;
+  if (handed_) SetReg(kFakeTriggerSoftware, 1);
 }
 
 void SimulatedCamera::Fill(_ArvBuffer* buffer, void* self, std::uint32_t, std::uint32_t,
@@ -309,11 +350,17 @@ void SimulatedCamera::Fill(_ArvBuffer* buffer, void* self, std::uint32_t, std::u
   auto* data = static_cast<std::uint8_t*>(const_cast<void*>(arv_buffer_get_data(buffer, &size)));
   const int w = arv_buffer_get_image_width(buffer), h = arv_buffer_get_image_height(buffer);
   std::optional<cv::Mat1w> frame;
+  std::uint64_t stamp = 0;
   {
     std::lock_guard lock(cam->mu_);
     frame.swap(cam->ready_frame_);
+    stamp = cam->ready_stamp_;
     if (frame && cam->Reg(kFakeAcquisitionMode) == 2) cam->SetReg(kFakeAcquisition, 0);
   }
+  // The GVSP leader's timestamp: the counter at the exposure's start (GigE Vision leaves the
+  // instant to the device; exposure start is what a trigger can be checked against). A frame the
+  // sender sends without one from the firmware (a stale trigger of the sender's own) is stamped 0.
+  arv_buffer_set_timestamp(buffer, frame ? stamp : 0);
   if (data == nullptr || w <= 0 || h <= 0) return;
   // Aravis checked the buffer against the payload (w * h * 2 bytes) before calling.
   if (!frame || frame->cols != w || frame->rows != h) {

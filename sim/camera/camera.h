@@ -58,6 +58,15 @@ inline constexpr std::uint32_t kShutter = 0x428;           // 0 open, 1 closed (
 inline constexpr std::uint32_t kExposureActive = 0x42c;    // 1 while integrating (RO)
 inline constexpr std::uint32_t kStatusSelector = 0x430;    // 6: ExposureActive (the only one)
 inline constexpr std::uint32_t kAcquisitionAbort = 0x434;  // write 1: drop the frame in hand
+// GigE Vision bootstrap timestamp registers (GigE Vision 2.0, section 28): the tick frequency
+// (64 bits, high word first), Timestamp Control (write bit 30, value 2: latch the counter; bit 31,
+// value 1: reset it to 0) and the latched value (64 bits, high word first). Frames carry the
+// counter at the start of their exposure in their GVSP leader.
+inline constexpr std::uint32_t kTimestampTickFrequencyHigh = 0x093C;
+inline constexpr std::uint32_t kTimestampTickFrequencyLow = 0x0940;
+inline constexpr std::uint32_t kTimestampControl = 0x0944;
+inline constexpr std::uint32_t kTimestampValueHigh = 0x0948;
+inline constexpr std::uint32_t kTimestampValueLow = 0x094C;
 }  // namespace camera_reg
 
 // The genicam file installed beside the sources (compiled-in path; overridable).
@@ -82,9 +91,11 @@ class SimulatedCamera {
   // Starts the GigE Vision camera on options.address (GVCP port 3956). Errors: the address is not
   // loopback (InvalidArgument), the genicam file is missing, or the port is taken (Io). The
   // scene, the clock, the lamp and the fault plan (may be null) must outlive the camera.
-  // Faults: frame_drop and frame_incomplete (opportunity: each frame at the end of its readout;
-  // an incomplete frame leaves with 30 % of its GVSP packets lost, which the client sees as a
-  // buffer with missing packets), cooler_fail (opportunity: each firmware step, so at_time_s).
+  // Faults: frame_drop, frame_incomplete and frame_late (opportunity: each frame at the end of
+  // its readout; an incomplete frame leaves with 30 % of its GVSP packets lost, which the client
+  // sees as a buffer with missing packets; a late one leaves duration_s simulated seconds after
+  // its readout, stamped with its exposure's start as ever), cooler_fail (opportunity: each
+  // firmware step, so at_time_s).
   static Result<std::unique_ptr<SimulatedCamera>> StartGigE(const Clock& clock, const Scene& scene,
                                                             AnglesSource angles, const Lamp& lamp,
                                                             CameraOptions options = {},
@@ -98,6 +109,11 @@ class SimulatedCamera {
   void DropFrames(int n);
   // Drops the controller now, as the fault plan's control_lost does (CCP cleared).
   void DropControl();
+  // A trigger the client did not send (a glitch on a trigger line): the camera exposes once more
+  // at the next firmware step, or after the exposure in hand, and sends that frame too.
+  void StrayTrigger();
+  // The sensor is integrating (ExposureActive).
+  bool Exposing() const;
   // GevHeartbeatTimeout as the client set it (bootstrap register 0x0938), in ms.
   std::uint32_t HeartbeatTimeoutMs() const;
   void FailCooler(bool failed);
@@ -115,6 +131,8 @@ class SimulatedCamera {
   std::uint32_t Reg(std::uint32_t address) const;
   void SetReg(std::uint32_t address, std::uint32_t value);
   ImageRegion CurrentRegion() const;
+  // The timestamp counter at clock time t: 1 GHz ticks since its last reset.
+  std::uint64_t Ticks(double t) const;
   cv::Mat1w Shoot(const StageAngles& a0, const StageAngles& a1, double t0, double exposure_s);
   const cv::Mat1d& Rates(const StageAngles& a, const ImageRegion& region);
 
@@ -139,6 +157,10 @@ class SimulatedCamera {
   bool integrating_ = false;  // exposing_ and the exposure has not yet ended (readout follows)
   StageAngles angles_at_start_, angles_at_end_;
   std::optional<cv::Mat1w> ready_frame_;
+  std::uint64_t ready_stamp_ = 0;  // ready_frame_'s exposure start, in timestamp ticks
+  double ready_at_ = 0;            // when ready_frame_ may leave (frame_late holds it)
+  bool handed_ = false;            // ready_frame_ is handed to the sender
+  double timestamp_zero_ = 0;      // the clock's time when the counter was last reset
   int drop_frames_ = 0;
   bool losing_packets_ = false;  // the last frame left with gvsp-lost-ratio raised
   struct CacheEntry {

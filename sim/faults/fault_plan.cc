@@ -6,7 +6,7 @@
 namespace gonio::sim {
 
 namespace {
-constexpr std::array<std::pair<FaultKind, std::string_view>, 10> kNames{{
+constexpr std::array<std::pair<FaultKind, std::string_view>, 11> kNames{{
     {FaultKind::kModbusTimeout, "modbus_timeout"},
     {FaultKind::kModbusCrc, "modbus_crc"},
     {FaultKind::kModbusDrop, "modbus_drop"},
@@ -17,6 +17,7 @@ constexpr std::array<std::pair<FaultKind, std::string_view>, 10> kNames{{
     {FaultKind::kCoolerFail, "cooler_fail"},
     {FaultKind::kMonitorDisconnect, "monitor_disconnect"},
     {FaultKind::kControlLost, "control_lost"},
+    {FaultKind::kFrameLate, "frame_late"},
 }};
 }  // namespace
 

@@ -21,6 +21,7 @@ struct SimInstrumentOptions {
   sim::LampOptions lamp{.drift_per_hour = 0, .wander_amplitude = 0, .flicker_rms = 0};
   std::shared_ptr<const sim::GroundTruth> truth;  // null: Walter 2007's ground glass
   std::vector<sim::FaultEvent> faults;            // injected by the simulated devices
+  double frame_timeout_s = 5;                     // the camera driver's, beyond the exposure
 };
 
 class SimInstrument {
@@ -39,6 +40,7 @@ class SimInstrument {
     // The client's side: the limits are the axes' own; the speeds these tests were written for.
     config::InstrumentConfig client = simulated->ClientConfig();
     client.camera.gain_db = o.gain_db;
+    client.camera.frame_timeout_s = o.frame_timeout_s;
     client.monitor.averaging = 100;
     for (devices::AxisSettings& a : client.axes) a.speed_deg_s = 30, a.acceleration_deg_s2 = 300;
     auto opened = daemon::OpenInstrument(client, {});

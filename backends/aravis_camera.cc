@@ -161,6 +161,7 @@ Status AravisCamera::ConnectSteps() {
         stamps_ = LatchTimestamp(0.5).ok();
       }
     }
+    caps_.frame_stamps = stamps_;
     g_signal_connect(dev, "control-lost", G_CALLBACK(+[](ArvGvDevice*, gpointer self) {
                        static_cast<AravisCamera*>(self)->control_lost_ = true;
                      }),
@@ -251,6 +252,7 @@ Status AravisCamera::Configure() {
     }
   }
   caps_.exposure_end = reports_end_;
+  caps_.frame_stamps = false;  // until ConnectSteps finds a working latch (GigE Vision only)
   return OkStatus();
 }
 

@@ -88,6 +88,9 @@ struct CameraCapabilities {
   bool cooler = true;        // a cooler with a setpoint (cooling waits)
   bool shutter = true;       // a shutter to close for dark frames
   bool exposure_end = true;  // says when the sensor stops integrating (ReportsExposureEnd)
+  // Its clock can be latched before a trigger, so a late frame of an earlier trigger is told
+  // from this trigger's (StaleFrames); without it frames are paired with triggers by order.
+  bool frame_stamps = true;
   // One line for logs: what is missing and what that turns off ("" when nothing is).
   std::string Missing() const {
     std::string m;
@@ -99,6 +102,9 @@ struct CameraCapabilities {
     add(cooler, "no cooler: cooling waits are off");
     add(shutter, "no shutter: dark frames cannot be taken, so runs are refused");
     add(exposure_end, "no exposure-end status: each frame is read out before the stages move");
+    add(frame_stamps,
+        "no timestamp latch: frames are paired with triggers by order, so a frame arriving after "
+        "its wait could be taken for the next trigger's");
     return m;
   }
 };

@@ -539,6 +539,9 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     SetState(State::kIdle, "");
     return;
   }
+  // A pause or an abort asked for from here on (while the estimate is made) is honoured.
+  stop_ = false;
+  stop_reason_ = StopReason::kNone;
   if (!job.run) {
     const auto points = acquisition::ExpandPoints(*plan, context_);
     auto run = db_.NewRun(*plan, o_.config_text, points,
@@ -552,17 +555,24 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     SaveJob(job);  // a restart finds the run through its job
     // What it is expected to cost, kept beside what it will cost (issue #17). An estimate that
     // cannot be made does not stop the run. An adaptive plan's simulates its runs (a second or
-    // a few), under the lock: released here, status would say idle with a job in hand.
-    if (auto e = acquisition::EstimateRun(db_, *plan, points, context_.axes,
-                                          o_.engine.linear_limit_adu, o_.engine.max_ranging_tries);
-        e.ok())
-      (void)db_.SetRunEstimate(*run, *e);
+    // a few): made without the lock, so that status and the API answer meanwhile, in a state
+    // that says a job is in hand (idle here once let `gonioctl wait` return before the run).
+    SetState(State::kRunning, "estimating the run's time");
+    lock.unlock();
+    auto e = acquisition::EstimateRun(db_, *plan, points, context_.axes, o_.engine.linear_limit_adu,
+                                      o_.engine.max_ranging_tries);
+    lock.lock();
+    if (e.ok()) (void)db_.SetRunEstimate(*run, *e);
     if (!plan->rectangle_reason.empty())
       (void)db_.AddEvent(*run, "rectangle", plan->rectangle_reason);
+    if (stop_reason_ == StopReason::kShutdown) return;  // the run stays planned
+    if (stop_reason_ == StopReason::kAbort) {
+      FinishCurrent(JobState::kAborted, "aborted by the operator before its first point");
+      SetState(State::kIdle, "");
+      return;
+    }
   }
   const std::int64_t run = *job.run;
-  stop_ = false;
-  stop_reason_ = StopReason::kNone;
   if (job.cooler && !job.cooled) {
     const CoolerWait w = *job.cooler;
     job.cooled = true;  // once per process: a pause does not wait again, a restart does

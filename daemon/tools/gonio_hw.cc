@@ -63,7 +63,8 @@ int CameraCommand(const config::InstrumentConfig& cfg, const std::string& action
     // What the camera lacks is a capability, not an error.
     std::cout << "has: temperature " << (caps.temperature ? "yes" : "no") << ", cooler "
               << (caps.cooler ? "yes" : "no") << ", shutter " << (caps.shutter ? "yes" : "no")
-              << ", exposure-end status " << (caps.exposure_end ? "yes" : "no") << "\n";
+              << ", exposure-end status " << (caps.exposure_end ? "yes" : "no")
+              << ", timestamp latch " << (caps.frame_stamps ? "yes" : "no") << "\n";
     if (!caps.Missing().empty()) std::cout << "note: " << caps.Missing() << "\n";
     return 0;
   }

@@ -20,6 +20,9 @@ cat "$work/info.txt"
 grep -q "^camera: Aravis" "$work/info.txt"
 grep -q "^has: temperature no, cooler no, shutter no" "$work/info.txt"
 grep -q "^note: no temperature sensor" "$work/info.txt"
+# Its latch register reads back what was written last, never a time: paired by order, and said.
+grep -q "timestamp latch no" "$work/info.txt"
+grep -q "no timestamp latch: frames are paired with triggers by order" "$work/info.txt"
 if grep -q "^sensor temperature" "$work/info.txt"; then echo "a temperature from no sensor"; exit 1; fi
 
 hw camera snap --exposure 0.01 --roi 0,0,64,64 --out "$work/frame.png" | tee "$work/snap.txt"

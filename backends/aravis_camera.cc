@@ -513,6 +513,7 @@ Status AravisCamera::Expose() {
     if (Status again = Trigger(); !again.ok()) return again;
   }
   exposed_ = true;
+  stale_at_expose_ = stale_frames_;
   ArvDevice* dev = arv_camera_get_device(camera_);
   const auto t0 = std::chrono::steady_clock::now();
   const double limit_s = exposure_s_ + s_.frame_timeout_s;
@@ -558,6 +559,18 @@ Result<Frame> AravisCamera::Retrieve() {
     return Error{ErrorCode::kTimeout, "camera " + s_.address + ": no frame within " +
                                           std::to_string(s_.frame_timeout_s) +
                                           " s of the exposure's end"};
+  // An earlier trigger's frame arrived since Expose triggered: its exposure was in the camera,
+  // and the end Expose saw may have been that one's. This frame may then have been exposed while
+  // the stages moved; it is refused (the caller retakes it at its point), though its own stamp
+  // says it is this trigger's.
+  if (stale_frames_ != stale_at_expose_) {
+    arv_stream_push_buffer(stream_, b);
+    return Error{ErrorCode::kDeviceFault,
+                 "camera " + s_.address +
+                     ": a frame of an earlier trigger arrived during this exposure, so the "
+                     "exposure's end that was seen may have been that frame's and the stages may "
+                     "have moved during this one"};
+  }
   auto f = Wrap(b, 1);
   if (!f.ok()) return Error{f.error().code, "camera " + s_.address + ": " + f.error().message};
   return f;

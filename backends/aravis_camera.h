@@ -123,6 +123,7 @@ class AravisCamera final : public Camera {
   double ns_per_tick_ = 1;
   std::uint64_t not_before_ns_ = 0;
   std::atomic<int> stale_frames_{0};
+  int stale_at_expose_ = 0;           // stale_frames_ when Expose triggered (Retrieve compares)
   devices::CameraCapabilities caps_;  // what the node map has of the config's features (Connect)
   bool exposed_ = false;         // Expose() has triggered a frame that Retrieve() has not taken
   _ArvBuffer* early_ = nullptr;  // that frame, when it arrived before the exposure's end was seen

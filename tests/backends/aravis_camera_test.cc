@@ -343,6 +343,26 @@ TEST_F(CameraDriver, AFrameExposedBeforeItsTriggerIsRefusedHoweverLateItArrives)
     EXPECT_NEAR(level(*f), dim, 0.1 * lit) << "round " << round << ": lit " << lit;
     EXPECT_EQ(cam->StaleFrames(), stale_before + 1) << "round " << round;
   }
+  // The split frame: Expose watches ExposureActive, which the stray exposure raises and lowers
+  // too, so the end it reports may be that one's. The frame is then refused, to be retaken: the
+  // stages may have moved during it.
+  ASSERT_TRUE(cam->ReportsExposureEnd());
+  arm_deg = 180;
+  sim_camera->StrayTrigger();
+  const auto t0 = std::chrono::steady_clock::now();
+  while (!sim_camera->Exposing() && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5))
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  ASSERT_TRUE(sim_camera->Exposing()) << "the stray trigger was not taken";
+  arm_deg = 150;
+  ASSERT_TRUE(cam->Expose().ok());
+  auto split = cam->Retrieve();
+  ASSERT_FALSE(split.ok()) << "a frame whose exposure end may have been another's was kept";
+  EXPECT_EQ(split.error().code, ErrorCode::kDeviceFault) << split.error().message;
+  EXPECT_NE(split.error().message.find("earlier trigger"), std::string::npos)
+      << split.error().message;
+  auto retake = cam->Snap();
+  ASSERT_TRUE(retake.ok()) << retake.error().message;
+  EXPECT_NEAR(level(*retake), dim, 0.1 * lit);
 }
 
 TEST_F(CameraDriver, CoolsToASetpointAndHoldsIt) {

@@ -60,6 +60,7 @@ build/daemon/goniod -c "$work/instrument.toml" --samples config/samples.toml \
 daemon=$!
 for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
 [[ -s "$work/apiport" ]] || { echo "goniod did not start:"; cat "$work/goniod.log"; exit 1; }
+echo "the console: http://127.0.0.1:$(cat "$work/apiport")/console/ (open it in a browser to watch the run)"
 ctl() {
   build/daemon/gonioctl --url "http://127.0.0.1:$(cat "$work/apiport")" \
     --token-file "$work/runs.sqlite.token" "$@"

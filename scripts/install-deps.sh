@@ -19,6 +19,8 @@ packages=(
   libcpp-httplib-dev libsystemd-dev
   # chart scripts and benchmark peers run with /usr/bin/python3 (docs/design.md, Python helpers)
   python3 python3-numpy python3-scipy python3-matplotlib
+  # the console's browser test (goniod.console_in_a_browser): headless Chromium, driven by Selenium
+  chromium chromium-driver python3-selenium
 )
 
 if [[ "${1:-}" == "--print" ]]; then

@@ -13,6 +13,7 @@
 #include <random>
 #include <sstream>
 
+#include "daemon/console/console.h"
 #include "daemon/schedule/schedule.h"
 #include "daemon/service/fit_run.h"
 #include "fitting/summary_json.h"
@@ -249,6 +250,7 @@ void ApiServer::Routes() {
   RouteRuns();
   RouteFits();
   RouteEvents();
+  RouteConsole();
 }
 
 // The token on every mutating call, and errors as JSON.
@@ -586,6 +588,26 @@ void ApiServer::RouteEvents() {
         },
         [this](bool) { streams_.fetch_sub(1); });
   });
+}
+
+// The operator's console: its page and the files it loads, built into goniod. The page may load
+// only this origin's scripts and styles, and frames of no other origin may hold it.
+void ApiServer::RouteConsole() {
+  httplib::Server& srv = *server_;
+  srv.Get("/",
+          [](const httplib::Request&, httplib::Response& res) { res.set_redirect("/console/"); });
+  srv.Get(
+      R"(/console/([A-Za-z0-9_.\-]*))", [](const httplib::Request& req, httplib::Response& res) {
+        const ConsoleFile* f = FindConsoleFile(req.matches[1].str());
+        if (f == nullptr)
+          return ReplyError(res, 404, "the console has no file '" + req.matches[1].str() + "'");
+        res.status = 200;
+        res.set_header("Content-Security-Policy",
+                       "default-src 'self'; img-src 'self' data: blob:; frame-ancestors 'none'");
+        res.set_header("X-Content-Type-Options", "nosniff");
+        res.set_header("Cache-Control", "no-cache");
+        res.set_content(std::string(f->body), std::string(ConsoleContentType(f->name)));
+      });
 }
 
 }  // namespace gonio::daemon

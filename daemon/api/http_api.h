@@ -58,6 +58,7 @@ class ApiServer {
   void RouteRuns();
   void RouteFits();
   void RouteEvents();
+  void RouteConsole();  // the operator's page (daemon/console/)
 
   Controller* controller_ = nullptr;
   ApiOptions o_;

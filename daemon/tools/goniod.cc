@@ -162,7 +162,8 @@ int main(int argc, char** argv) {
   }
   if (!port_file.empty()) std::ofstream(port_file) << (*api)->port() << "\n";
   std::cout << Timestamp() << " [api] listening on http://" << host << ":" << (*api)->port()
-            << " (token in " << token_file << ")" << std::endl;
+            << " (token in " << token_file << "); the console: http://" << host << ":"
+            << (*api)->port() << "/console/" << std::endl;
   sd_notify(0, "READY=1");
 
   int sig = 0;

@@ -226,6 +226,41 @@ TEST_F(DaemonApi, EveryEndpointAnswersAndErrorsNameTheProblemWithTheRightStatus)
   EXPECT_EQ(State(), "idle");
 }
 
+// The console's page and files come from the API's own address, with a policy that lets the page
+// load only from there; nothing but its built-in files can be named.
+TEST_F(DaemonApi, TheConsoleIsServedFromTheApisAddressAndNamesNothingElse) {
+  auto root = client->Get("/");
+  ASSERT_TRUE(root);
+  EXPECT_EQ(root->status, 302);
+  EXPECT_EQ(root->get_header_value("Location"), "/console/");
+  auto page = client->Get("/console/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  EXPECT_EQ(page->get_header_value("Content-Type"), "text/html; charset=utf-8");
+  EXPECT_NE(page->get_header_value("Content-Security-Policy").find("default-src 'self'"),
+            std::string::npos);
+  EXPECT_EQ(page->get_header_value("X-Content-Type-Options"), "nosniff");
+  // Every file the page names is served, with its type.
+  for (const char* f : {"console.js", "console.css"}) {
+    EXPECT_NE(page->body.find(std::string("\"") + f + "\""), std::string::npos) << f;
+    auto r = client->Get(std::string("/console/") + f);
+    ASSERT_TRUE(r) << f;
+    EXPECT_EQ(r->status, 200) << f;
+    EXPECT_GT(r->body.size(), 1000u) << f;
+  }
+  EXPECT_EQ(client->Get("/console/console.js")->get_header_value("Content-Type"),
+            "text/javascript; charset=utf-8");
+  for (const char* bad : {"/console/nothing.js", "/console/..%2fapi%2fv1%2fstatus",
+                          "/console/../README.md", "/console/index.html/x"}) {
+    auto r = client->Get(bad);
+    ASSERT_TRUE(r) << bad;
+    EXPECT_EQ(r->status, 404) << bad;
+    EXPECT_EQ(r->body.find("<html"), std::string::npos) << bad;
+  }
+  // The page does nothing the API does not: a mutation from it without the token is refused.
+  EXPECT_EQ(client->Post("/console/", "x", "text/plain")->status, 401);
+}
+
 TEST_F(DaemonApi, JobsRunInQueueOrderAndQueuedOnesCanBeMovedOrCancelled) {
   const auto first = SubmitPlan(), second = SubmitPlan(), third = SubmitPlan();
   ASSERT_TRUE(WaitFor([&] { return State() == "running"; }, 10));

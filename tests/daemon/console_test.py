@@ -1,0 +1,216 @@
+#!/usr/bin/python3
+"""The operator's console in a real browser (issue #20): headless Chromium, driven by
+ChromeDriver through Selenium (Debian's chromium, chromium-driver and python3-selenium), against
+goniod on the simulated instrument. Run by console_test.sh, which starts both.
+
+What it checks, as an operator would see it:
+  - the page loads from goniod's address, read-only without the token; a change asked from the
+    page without the token is refused (401, said on the page) and so is one from a plain HTTP
+    client; the token typed once is never shown on the page nor put in a URL;
+  - a plan's dry run shows its points and time, and queues nothing; submitted, its points appear
+    in the lobe plot as they are stored, with the temperature and exposure plots beside;
+  - pause stops the run after its point (no new points while paused), resume continues it, and
+    the run finishes with every point drawn; abort asks first, "keep running" keeps it running;
+  - a past run opens with its events, and its CSV link gives the run's CSV.
+It saves screenshots (the README's is one of them) and prints what the page measured of itself:
+time to first paint and, per new point, ms from the point's event to the point drawn.
+
+Usage: console_test.py URL TOKEN PLAN OUTDIR
+"""
+import json
+import statistics
+import sys
+import time
+import urllib.error
+import urllib.request
+
+from selenium import webdriver
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+
+url, token, plan, outdir = sys.argv[1:5]
+failures = []
+
+
+def check(cond, what):
+    if not cond:
+        failures.append(what)
+        print("FAIL:", what, flush=True)
+    return cond
+
+
+def fatal(what):
+    print("FAIL:", what, flush=True)
+    try:
+        driver.save_screenshot(f"{outdir}/console_failure.png")
+        print("page message:", driver.find_element(By.ID, "message").text)
+        print("state:", driver.find_element(By.ID, "state").text)
+    except Exception as e:  # the browser may be what failed
+        print("(no screenshot:", e, ")")
+    sys.exit(1)
+
+
+def wait_for(pred, what, timeout=60.0):
+    end = time.monotonic() + timeout
+    last = None
+    while time.monotonic() < end:
+        try:
+            last = pred()
+            if last:
+                return last
+        except Exception as e:  # an element being redrawn
+            last = e
+        time.sleep(0.1)
+    fatal(f"{what} (after {timeout:.0f} s; last: {last!r})")
+
+
+def text(id_):
+    return driver.find_element(By.ID, id_).text
+
+
+def state():
+    return driver.find_element(By.ID, "state").get_attribute("data-state")
+
+
+def points():
+    return len(driver.find_elements(By.CSS_SELECTOR, "#lobe circle.point"))
+
+
+def http(method, path, body=None, auth=False):
+    req = urllib.request.Request(url + path, method=method,
+                                 data=None if body is None else json.dumps(body).encode())
+    if auth:
+        req.add_header("Authorization", "Bearer " + token)
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, r.read().decode("utf-8", "replace"), r.headers
+    except urllib.error.HTTPError as e:
+        return e.code, e.read().decode("utf-8", "replace"), e.headers
+
+
+# What goniod serves, seen by a plain HTTP client.
+code, body, headers = http("GET", "/console/")
+check(code == 200 and "<title>gonio console</title>" in body, f"GET /console/: {code}")
+check("default-src 'self'" in (headers.get("Content-Security-Policy") or ""),
+      "the page is served with a Content-Security-Policy that allows only its own origin")
+code, body, _ = http("GET", "/console/nothing.js")
+check(code == 404 and "no file" in body, f"an unknown console file is a 404 (got {code})")
+code, body, _ = http("POST", "/api/v1/pause", {})
+check(code == 401, f"a mutation without the token from a plain client is refused (got {code})")
+
+opts = webdriver.ChromeOptions()
+opts.binary_location = "/usr/bin/chromium"
+for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+          "--window-size=1500,1100", "--no-first-run", "--disable-extensions"):
+    opts.add_argument(a)
+driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=opts)
+driver.set_page_load_timeout(30)
+try:
+    driver.get(url + "/")
+    check(driver.current_url.endswith("/console/"), f"/ leads to the console ({driver.current_url})")
+    wait_for(lambda: state() == "idle", "the page shows goniod idle")
+    check(text("token-state") == "read-only", "without a token the page says it is read-only")
+    paint = driver.execute_script(
+        "return performance.getEntriesByType('paint').map(e => [e.name, e.startTime]);")
+
+    # Without the token: the page's submit is refused with 401, and it says so.
+    driver.find_element(By.ID, "plan-file").send_keys(plan)
+    driver.find_element(By.ID, "submit").click()
+    msg = wait_for(lambda: "401" in text("message") and text("message"),
+                   "the page shows the refusal of a submit without the token")
+    check("token" in msg, f"the refusal says what is missing: {msg!r}")
+    check(not driver.find_elements(By.CSS_SELECTOR, "#jobs tr[data-state='queued']"),
+          "nothing was queued without the token")
+
+    # The token, typed once: never on the page, never in the URL.
+    driver.find_element(By.ID, "token").send_keys(token)
+    driver.find_element(By.ID, "token-set").click()
+    wait_for(lambda: "changes allowed" in text("token-state"), "the token is taken")
+    check(token not in driver.page_source and token not in driver.current_url,
+          "the token is nowhere on the page or in its URL")
+
+    # Dry run: what the plan would do, nothing queued.
+    driver.find_element(By.ID, "dry-run").click()
+    dry = wait_for(lambda: "points" in text("dry-run-result") and text("dry-run-result"),
+                   "the dry run shows the plan's points and time")
+    print("dry run:", dry)
+    check(not driver.find_elements(By.CSS_SELECTOR, "#jobs tr[data-state='queued']"),
+          "a dry run queues nothing")
+
+    # Submit, and watch points arrive.
+    driver.find_element(By.ID, "submit").click()
+    wait_for(lambda: "queued as job" in text("message"), "the page says the plan was queued")
+    wait_for(lambda: state() == "running", "the run starts")
+    wait_for(lambda: points() >= 2, "points appear in the lobe plot", timeout=90)
+    driver.save_screenshot(f"{outdir}/console_running.png")
+    check(len(driver.find_elements(By.CSS_SELECTOR, "#temperature polyline")) == 1 and
+          len(driver.find_elements(By.CSS_SELECTOR, "#exposure polyline")) == 1,
+          "the temperature and exposure plots are drawn")
+    check("Run " in text("run-title"), f"the run is named: {text('run-title')!r}")
+
+    # Pause: no new point while paused; resume.
+    driver.find_element(By.ID, "pause").click()
+    wait_for(lambda: state() == "paused", "pause from the page pauses the run", timeout=60)
+    n = points()
+    time.sleep(2.5)  # more than two of the page's fetch periods
+    check(points() == n, f"no new point while paused ({n} then {points()})")
+    check(not driver.find_element(By.ID, "resume").get_attribute("disabled"),
+          "resume is offered while paused")
+    driver.find_element(By.ID, "resume").click()
+    wait_for(lambda: state() == "running" or points() > n, "resume continues the run")
+
+    # Abort asks first; "keep running" keeps it running.
+    driver.find_element(By.ID, "abort").click()
+    check(driver.find_element(By.ID, "abort-confirm").is_displayed(), "abort asks for confirmation")
+    check("Abort run" in text("abort-question"), f"it names the run: {text('abort-question')!r}")
+    driver.find_element(By.ID, "abort-no").click()
+    check(not driver.find_element(By.ID, "abort-confirm").is_displayed(),
+          "keep running closes the question")
+
+    # The run finishes with every point drawn.
+    wait_for(lambda: "done" in text("run-summary"), "the run finishes", timeout=180)
+    summary = text("run-summary")
+    done, total = summary.split(", ")[1].split(" points")[0].split(" of ")
+    wait_for(lambda: points() == int(total), f"every point of the run is drawn ({summary})")
+    check(int(done) == int(total), f"the run measured every point: {summary}")
+    kinds = [e.get_attribute("data-kind")
+             for e in driver.find_elements(By.CSS_SELECTOR, "#events tbody tr")]
+    check("paused" in kinds, f"the events show the pause ({kinds})")
+    incidences = {g.get_attribute("data-incidence")
+                  for g in driver.find_elements(By.CSS_SELECTOR, "#lobe g[data-incidence]")}
+    check(incidences == {"0", "30"}, f"one series per incidence ({incidences})")
+    driver.save_screenshot(f"{outdir}/console_done.png")
+
+    # A second run, aborted from the page after the question.
+    driver.find_element(By.ID, "submit").click()
+    wait_for(lambda: state() == "running" and "Run 2" in text("run-title"), "a second run starts")
+    driver.find_element(By.ID, "abort").click()
+    driver.find_element(By.ID, "abort-yes").click()
+    wait_for(lambda: "aborted" in text("run-summary"), "abort from the page ends the run", 90)
+
+    # A past run: open run 1 (the follow box goes off), its CSV link gives its CSV.
+    run1 = "#runs tr[data-run='1']"
+    driver.find_element(By.CSS_SELECTOR, run1 + " button").click()
+    wait_for(lambda: text("run-title").startswith("Run 1"), "a past run opens")
+    check(not driver.find_element(By.ID, "follow").is_selected(), "opening a run stops following")
+    check("selected" in driver.find_element(By.CSS_SELECTOR, run1).get_attribute("class"),
+          "the opened run is marked in the list")
+    href = driver.find_element(By.CSS_SELECTOR, run1 + " a").get_attribute("href")
+    code, csv, _ = http("GET", href[len(url):])
+    check(code == 200 and csv.count("\n") >= int(total), f"the CSV link gives the run ({code})")
+
+    shown = driver.execute_script("return window.gonioMetrics.pointShownMs;")
+    fetches = driver.execute_script("return window.gonioMetrics.fetches;")
+    fp = dict(paint).get("first-contentful-paint")
+    print(f"first contentful paint: {fp:.0f} ms" if fp is not None else "no paint timing")
+    if shown:
+        print(f"new point shown after its event: median {statistics.median(shown):.0f} ms, "
+              f"max {max(shown):.0f} ms over {len(shown)} points; {fetches} API requests")
+    check(len(shown) >= 3, f"the page measured its latency on several points ({len(shown)})")
+finally:
+    driver.quit()
+
+if failures:
+    print(f"{len(failures)} check(s) failed")
+    sys.exit(1)
+print("console: every check passed")

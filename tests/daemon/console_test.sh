@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# The operator's console in headless Chromium against goniod on gonio-sim (issue #20):
+# console_test.py says what it checks. Skips (exit 77) with a clear message only when no browser
+# is installed; scripts/install-deps.sh installs it, so CI always runs it.
+# Usage: console_test.sh GONIO_SIM GONIOD SOURCE_DIR WORKDIR
+set -euo pipefail
+sim=$1 goniod=$2 src=$3 work=$4
+for need in /usr/bin/chromium /usr/bin/chromedriver; do
+  [[ -x $need ]] || { echo "SKIP: $need is missing (scripts/install-deps.sh installs it)"; exit 77; }
+done
+/usr/bin/python3 -c "import selenium" 2>/dev/null ||
+  { echo "SKIP: python3-selenium is missing (scripts/install-deps.sh installs it)"; exit 77; }
+mkdir -p "$work"
+rm -rf "${work:?}"/*
+source "$src/tests/support/gonio_sim.sh"
+daemon=""
+fail() { echo "FAIL: $*" >&2; echo "--- goniod.log (its end)" >&2; tail -30 "$work/goniod.log" >&2 || true; exit 1; }
+trap '[[ -n "$daemon" ]] && { kill -KILL $daemon 2>/dev/null || true; }; stop_gonio_sim' EXIT
+# x5: a point takes about a second, so the page sees points arrive and can pause between them.
+start_gonio_sim "$sim" 5 "$work" "$src"
+cat > "$work/console_plan.toml" <<'PLAN'
+sample = "ground-glass-G1"
+[geometry]
+incidence_deg = [0, 30]
+view_about = "refracted"
+view_from_deg = -9
+view_to_deg = 9
+view_step_deg = 3
+[exposure]
+frames = 3
+initial_s = 0.2
+[rectangle]
+x = 253
+y = 246
+width = 6
+height = 19
+PLAN
+db="$work/runs.sqlite"
+"$goniod" -c "$work/instrument.toml" --samples "$src/config/samples.toml" --db "$db" \
+  --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
+daemon=$!
+for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
+[[ -s "$work/apiport" ]] || fail "goniod did not start"
+url="http://127.0.0.1:$(cat "$work/apiport")"
+/usr/bin/python3 "$src/tests/daemon/console_test.py" "$url" "$(cat "$db.token")" \
+  "$work/console_plan.toml" "$work" || fail "console_test.py"
+kill -TERM "$daemon"
+wait "$daemon" || fail "goniod did not exit cleanly"
+daemon=""
+echo "screenshots: $work/console_running.png $work/console_done.png"

@@ -11,6 +11,12 @@ rm -f "$work"/*
 source "$src/tests/support/gonio_sim.sh"
 trap stop_gonio_sim EXIT
 start_gonio_sim "$sim" 40 "$work" "$src"
+# Each resume waits out the killed process's hold on the camera (its heartbeat timeout + 3 s):
+# 5 s instead of the example's 10 keeps four kills 20 s shorter. Aravis sends a heartbeat every
+# second, so five may be missed before the camera drops a live controller.
+sed -i 's/^heartbeat_timeout_s = 10 /heartbeat_timeout_s = 5 /' "$work/instrument.toml"
+grep -q '^heartbeat_timeout_s = 5 ' "$work/instrument.toml" ||
+  { echo "the example config's heartbeat_timeout_s line changed; update this test"; exit 1; }
 cat > "$work/plan.toml" <<'PLAN'
 sample = "ground-glass-G1"
 [geometry]

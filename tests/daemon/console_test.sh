@@ -16,8 +16,8 @@ source "$src/tests/support/gonio_sim.sh"
 daemon=""
 fail() { echo "FAIL: $*" >&2; echo "--- goniod.log (its end)" >&2; tail -30 "$work/goniod.log" >&2 || true; exit 1; }
 trap '[[ -n "$daemon" ]] && { kill -KILL $daemon 2>/dev/null || true; }; stop_gonio_sim' EXIT
-# x5: a point takes about a second, so the page sees points arrive and can pause between them.
-start_gonio_sim "$sim" 5 "$work" "$src"
+# x10: a point takes about half a second, so the page sees points arrive and can pause between them.
+start_gonio_sim "$sim" 10 "$work" "$src"
 cat > "$work/console_plan.toml" <<'PLAN'
 sample = "ground-glass-G1"
 [geometry]

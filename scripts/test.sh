@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The README's test command (about 17 minutes on 2 cores from a clean clone with the packages
+# The README's test command (about 17½ minutes on 2 cores from a clean clone with the packages
 # present; README.md states the measured time):
 #   1. installs what a fresh Debian 12 machine lacks (scripts/install-deps.sh)
 #   2. checks formatting against the committed .clang-format, and the layers (cmake/layers.txt)

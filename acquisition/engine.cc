@@ -155,6 +155,7 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
     if (k == 0) {
       --stats_.ranging_frames;  // the last ranging frame is the first averaged one
       e.acc.Add(first->image);
+      if (show_frame_) show_frame_(first->image, p, t);
       first.reset();  // frames are not kept beyond their reduction
       continue;
     }

@@ -90,12 +90,18 @@ class Engine {
   // the exposure in progress is stopped (Camera::SetInterrupt), the point's frames so far are
   // discarded, the point stays pending, and Run returns OK with the run paused. Null: none.
   void InterruptOn(const std::atomic<bool>* flag) { interrupt_ = flag; }
+  // Shows `observer` the first averaged frame of every point (a console's live view), on the
+  // engine's thread; the image is valid only during the call, which should be short.
+  using FrameObserver =
+      std::function<void(const cv::Mat1w& image, const PlannedPoint& point, double exposure_s)>;
+  void ShowFramesTo(FrameObserver observer) { show_frame_ = std::move(observer); }
 
   const EngineStats& stats() const { return stats_; }
 
  private:
   bool Interrupted() const { return interrupt_ != nullptr && interrupt_->load(); }
   const std::atomic<bool>* interrupt_ = nullptr;
+  FrameObserver show_frame_;
 
   // A point whose frames are all exposed; its last frame may still be reading out.
   struct Exposed {

@@ -318,4 +318,32 @@ Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition&
   return ComputeResponseWithApertures(setup, at, rings, per_ring, level.max_rays);
 }
 
+Result<RectangleCoverage> CoverageOf(const ResponseSetup& setup, const StagePosition& at) {
+  auto r = ComputeResponse(setup, at, 1024);
+  if (!r.ok()) return r.error();
+  RectangleCoverage c;
+  const SensorRectangle& q = setup.rectangle;
+  c.width_mm = q.width * q.binning_h * setup.bench.mm_per_pixel;
+  c.height_mm = q.height * q.binning_v * setup.bench.mm_per_pixel;
+  c.rays = static_cast<int>(r->rays.size());
+  auto angle = [](const V& a, const V& b) {
+    const double cosine = Dot(a, b) / std::sqrt(LengthSquared(a) * LengthSquared(b));
+    return std::acos(std::clamp(cosine, -1.0, 1.0)) / kDeg;
+  };
+  double w = 0, v2 = 0, l2 = 0;
+  for (const ResponseRay& ray : r->rays) {
+    const double dv = angle(ray.v, r->v0), dl = angle(ray.l, r->l0);
+    w += ray.weight;
+    v2 += ray.weight * dv * dv;
+    l2 += ray.weight * dl * dl;
+    c.view_max_deg = std::max(c.view_max_deg, dv);
+    c.light_max_deg = std::max(c.light_max_deg, dl);
+  }
+  if (w > 0) {
+    c.view_rms_deg = std::sqrt(v2 / w);
+    c.light_rms_deg = std::sqrt(l2 / w);
+  }
+  return c;
+}
+
 }  // namespace gonio::fitting

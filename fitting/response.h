@@ -137,4 +137,17 @@ struct PointResponse {
 // Relative solid angle -> half-angle of a cone: omega = 2 pi (1 - cos theta).
 double ConeHalfAngle(double solid_angle_sr);
 
+// What a rectangle takes in, for choosing one (the operator's console): its size on the plane
+// through O facing the camera, and the spread of the view and light directions of its pixels
+// about the nominal pair, weighted as in (R1). At normal incidence seen straight through unless
+// `at` says otherwise. Errors: those of ComputeResponse.
+struct RectangleCoverage {
+  double width_mm = 0, height_mm = 0;
+  double view_rms_deg = 0, view_max_deg = 0;
+  double light_rms_deg = 0, light_max_deg = 0;
+  int rays = 0;  // traced (blocks of pixels for a large rectangle)
+};
+Result<RectangleCoverage> CoverageOf(const ResponseSetup& setup,
+                                     const StagePosition& at = {0, 180, 0});
+
 }  // namespace gonio::fitting

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <charconv>
 #include <filesystem>
@@ -16,6 +17,7 @@
 #include "daemon/console/console.h"
 #include "daemon/schedule/schedule.h"
 #include "daemon/service/fit_run.h"
+#include "fitting/response.h"
 #include "fitting/summary_json.h"
 
 namespace gonio::daemon {
@@ -156,6 +158,46 @@ std::optional<int> IntField(const json& body, const char* name, int fallback, in
   return static_cast<int>(v.get<std::int64_t>());
 }
 
+json FrameJson(const FrameView& f) {
+  json o{{"seq", f.seq},
+         {"source", f.source},
+         {"exposure_s", f.exposure_s},
+         {"at", f.at},
+         {"frame_width", f.frame_width},
+         {"frame_height", f.frame_height},
+         {"scale", f.scale},
+         {"width", f.width},
+         {"height", f.height},
+         {"saturated_pixels", f.saturated_pixels},
+         {"saturated_mark", kSaturatedMark},
+         {"min", f.min},
+         {"max", f.max}};
+  o["run"] = f.run ? json(*f.run) : json(nullptr);
+  o["point"] = f.point ? json(*f.point) : json(nullptr);
+  o["rectangle"] = f.rectangle ? json{{"x", f.rectangle->x},
+                                      {"y", f.rectangle->y},
+                                      {"width", f.rectangle->width},
+                                      {"height", f.rectangle->height}}
+                               : json(nullptr);
+  return o;
+}
+
+// A query parameter that must be an integer lo..hi, or a 400 naming it.
+std::optional<int> IntParam(const httplib::Request& req, const char* name, int lo, int hi,
+                            httplib::Response& res) {
+  const std::string text = req.get_param_value(name);
+  int v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (text.empty() || ec != std::errc() || end != text.data() + text.size() || v < lo || v > hi) {
+    ReplyError(res, 400,
+               std::string("the query needs ") + name + " = an integer " + std::to_string(lo) +
+                   ".." + std::to_string(hi) +
+                   (text.empty() ? "" : ", not '" + text.substr(0, 32) + "'"));
+    return std::nullopt;
+  }
+  return v;
+}
+
 }  // namespace
 
 void ReturnLargeBlocksToTheSystem() { ::mallopt(M_MMAP_THRESHOLD, 1 << 20); }
@@ -250,6 +292,7 @@ void ApiServer::Routes() {
   RouteRuns();
   RouteFits();
   RouteEvents();
+  RouteCamera();
   RouteConsole();
 }
 
@@ -472,6 +515,7 @@ void ApiServer::RouteRuns() {
                     {"exposure_s", r.m.exposure_s},
                     {"frames", r.m.frames},
                     {"temperature_c", r.m.temperature_c},
+                    {"monitor_w", r.m.monitor_w ? json(*r.m.monitor_w) : json(nullptr)},
                     {"flags", r.m.flags}});
     o["measurements"] = ms;
     auto events = reader_->Events(info->id);
@@ -514,6 +558,29 @@ void ApiServer::RouteFits() {
                               {"summary", json::parse(f.summary, nullptr, false)}});
             Reply(res, 200, {{"fits", list}});
           });
+  // A stored fit at each of the run's points, for drawing it beside the data (the console).
+  srv.Get(R"(/api/v1/runs/(\d+)/fits/(\d+)/prediction)", [this](const httplib::Request& req,
+                                                                httplib::Response& res) {
+    const auto id = IdOf(req, res, "run");
+    if (!id) return;
+    std::int64_t fit = 0;
+    const std::string text = req.matches[2].str();
+    if (const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), fit);
+        ec != std::errc() || end != text.data() + text.size())
+      return ReplyError(
+          res, 400, "the fit id '" + text.substr(0, 32) + "' is not a number of at most 18 digits");
+    if (auto info = reader_->GetRun(*id); !info.ok())
+      return ReplyError(res, 404, info.error().message);
+    auto points = PredictRun(*reader_, *id, fit);
+    if (!points.ok()) return ReplyError(res, points.error());
+    json list = json::array();
+    for (const PointPrediction& p : *points)
+      list.push_back({{"index", p.index},
+                      {"theta_l_deg", p.theta_l_deg},
+                      {"theta_v_deg", p.theta_v_deg},
+                      {"value", p.value}});
+    Reply(res, 200, {{"run", *id}, {"fit", fit}, {"points", list}});
+  });
   srv.Post(R"(/api/v1/runs/(\d+)/fit)",
            [this](const httplib::Request& req, httplib::Response& res) {
              auto body = Body(req, res);
@@ -587,6 +654,96 @@ void ApiServer::RouteEvents() {
           return sink.write(out.data(), out.size());
         },
         [this](bool) { streams_.fetch_sub(1); });
+  });
+}
+
+// The camera as the console's live view sees it (docs/api.md): the latest frame, downscaled, as
+// JSON (what it is) and as raw pixels (little-endian uint16, row-major); a snap between runs; and
+// what a rectangle on the frames would take in, from the bench's geometry.
+void ApiServer::RouteCamera() {
+  httplib::Server& srv = *server_;
+  Controller& c = *controller_;
+  constexpr const char* kNoFrame =
+      "no frame yet: frames show once a run measures a point, or after a snap (POST "
+      "/api/v1/camera/snap)";
+  srv.Get("/api/v1/frame", [&c, kNoFrame](const httplib::Request&, httplib::Response& res) {
+    const auto f = c.frames().Get();
+    if (!f) return ReplyError(res, 404, kNoFrame);
+    Reply(res, 200, FrameJson(*f));
+  });
+  srv.Get("/api/v1/frame/pixels", [&c, kNoFrame](const httplib::Request&, httplib::Response& res) {
+    const auto f = c.frames().Get();
+    if (!f) return ReplyError(res, 404, kNoFrame);
+    std::string body(f->pixels.size() * 2, '\0');
+    for (std::size_t i = 0; i < f->pixels.size(); ++i) {
+      body[2 * i] = static_cast<char>(f->pixels[i] & 0xff);
+      body[2 * i + 1] = static_cast<char>(f->pixels[i] >> 8);
+    }
+    res.status = 200;
+    res.set_header("X-Frame-Seq", std::to_string(f->seq));
+    res.set_header("X-Frame-Width", std::to_string(f->width));
+    res.set_header("X-Frame-Height", std::to_string(f->height));
+    res.set_header("Cache-Control", "no-store");
+    res.set_content(std::move(body), "application/octet-stream");
+  });
+  srv.Post("/api/v1/camera/snap", [&c](const httplib::Request& req, httplib::Response& res) {
+    const auto body = Body(req, res);
+    if (!body) return;
+    if (!body->contains("exposure_s") || !(*body)["exposure_s"].is_number())
+      return ReplyError(res, 400, "the body needs \"exposure_s\": the exposure in seconds");
+    auto f = c.Snap((*body)["exposure_s"].get<double>());
+    if (!f.ok()) {
+      const ErrorCode code = f.error().code;
+      // The camera's own failures (no frame, a link that dropped) are the device's, not goniod's.
+      if (code == ErrorCode::kTimeout || code == ErrorCode::kDeviceFault ||
+          code == ErrorCode::kNotConnected || code == ErrorCode::kAborted)
+        return ReplyError(res, 503, "the camera: " + f.error().message);
+      return ReplyError(res, f.error());
+    }
+    Reply(res, 200, FrameJson(**f));
+  });
+  srv.Get("/api/v1/rectangle", [&c](const httplib::Request& req, httplib::Response& res) {
+    const auto& setup = c.context().response;
+    if (!setup)
+      return ReplyError(res, 409,
+                        "the instrument config has no [bench]: a rectangle's size in mm and its "
+                        "spread of directions are unknown");
+    constexpr int kMax = 1 << 16;
+    const auto x = IntParam(req, "x", 0, kMax, res);
+    if (!x) return;
+    const auto y = IntParam(req, "y", 0, kMax, res);
+    if (!y) return;
+    const auto w = IntParam(req, "width", 1, kMax, res);
+    if (!w) return;
+    const auto h = IntParam(req, "height", 1, kMax, res);
+    if (!h) return;
+    fitting::ResponseSetup s = *setup;
+    s.rectangle.x = *x;
+    s.rectangle.y = *y;
+    s.rectangle.width = *w;
+    s.rectangle.height = *h;
+    if (req.has_param("specimen")) {
+      const std::string name = req.get_param_value("specimen");
+      const auto& specimens = c.context().specimens;
+      const auto it = std::find_if(specimens.begin(), specimens.end(),
+                                   [&](const auto& sp) { return sp.name == name; });
+      if (it == specimens.end())
+        return ReplyError(res, 400, "no specimen '" + name.substr(0, 64) + "' in the catalogue");
+      s.thickness_mm = it->thickness_mm;
+    }
+    auto cover = fitting::CoverageOf(s);
+    if (!cover.ok()) return ReplyError(res, 400, cover.error().message);
+    Reply(res, 200,
+          json{{"x", *x},
+               {"y", *y},
+               {"width", *w},
+               {"height", *h},
+               {"thickness_mm", s.thickness_mm},
+               {"width_mm", cover->width_mm},
+               {"height_mm", cover->height_mm},
+               {"view_spread_deg", {{"rms", cover->view_rms_deg}, {"max", cover->view_max_deg}}},
+               {"light_spread_deg", {{"rms", cover->light_rms_deg}, {"max", cover->light_max_deg}}},
+               {"rays", cover->rays}});
   });
 }
 

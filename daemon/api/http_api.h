@@ -10,7 +10,7 @@
 //   409 not now (pause when idle, cancel a running job)
 //   413 a body over max_body_bytes
 //   500 a storage error, or an internal error (numbered; the text goes to the log only)
-//   503 max_stream_clients event streams are already open
+//   503 max_stream_clients event streams are already open, or a snap's camera failed
 #pragma once
 
 #include <atomic>
@@ -58,6 +58,7 @@ class ApiServer {
   void RouteRuns();
   void RouteFits();
   void RouteEvents();
+  void RouteCamera();   // the latest frame, a snap between runs, a rectangle's coverage
   void RouteConsole();  // the operator's page (daemon/console/)
 
   Controller* controller_ = nullptr;

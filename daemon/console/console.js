@@ -7,6 +7,7 @@
 'use strict';
 
 const MIN_FETCH_MS = 1000;
+const FRAME_MS = 2000;  // the camera view: at most one frame fetched per this
 const POLL_MS = 5000;
 const TOKEN_KEY = 'gonio.token';  // sessionStorage: gone when the browser session ends
 const SVG = 'http://www.w3.org/2000/svg';
@@ -91,13 +92,15 @@ const view = {
   runs: [],
   run: null,        // the shown run, as GET /api/v1/runs/{id} returns it
   fits: [],
+  curveFit: null,   // the id of the fit drawn on the lobe (null: the one BIC prefers)
+  curve: null,      // {fit, byIndex: Map(point index -> the fit's value)}
   selected: null,   // the shown run's id
   follow: true,
   pendingPoint: null,  // {run, done, at}: a progress event not drawn yet
 };
 
-// Each resource is fetched at most once per MIN_FETCH_MS; a request in between is deferred.
-function throttled(fn) {
+// Each resource is fetched at most once per minMs; a request in between is deferred.
+function throttled(fn, minMs = MIN_FETCH_MS) {
   let last = 0, timer = null, running = false, again = false;
   const run = async () => {
     timer = null;
@@ -111,7 +114,7 @@ function throttled(fn) {
   };
   const schedule = () => {
     if (timer !== null) return;
-    const wait = Math.max(0, last + MIN_FETCH_MS - performance.now());
+    const wait = Math.max(0, last + minMs - performance.now());
     timer = setTimeout(run, wait);
   };
   return schedule;
@@ -148,9 +151,29 @@ const fetchRun = throttled(async () => {
     if (id !== view.selected) return;
     view.run = run;
     view.fits = fits;
-    if (changed('run', [run, fits])) renderRun();
+    await fetchCurve(id);
+    if (changed('run', [run, fits, view.curve && view.curve.fit])) renderRun();
   } catch (e) { say(e.message, true); }
 });
+
+// The fit drawn on the lobe: the operator's choice, else the one of least BIC. Its
+// values at the run's points are fetched once per fit (a fit does not change once stored).
+async function fetchCurve(run) {
+  // A poor fit can be drawn too: the operator sees where it misses.
+  const ok = view.fits.filter((f) => f.summary && f.summary.status && f.summary.status !== 'failed');
+  let fit = ok.find((f) => f.id === view.curveFit);
+  if (!fit && ok.length) fit = ok.reduce((a, b) => (b.summary.bic < a.summary.bic ? b : a));
+  if (!fit) { view.curve = null; return; }
+  if (view.curve && view.curve.fit === fit.id && view.curve.run === run) return;
+  try {
+    const p = await request('GET', '/api/v1/runs/' + run + '/fits/' + fit.id + '/prediction');
+    view.curve = { run, fit: fit.id, model: fit.model,
+                   byIndex: new Map(p.points.map((q) => [q.index, q.value])) };
+  } catch (e) {
+    view.curve = null;
+    say('the fit cannot be drawn: ' + e.message, true);
+  }
+}
 
 // Whether what a table or plot shows changed since it was last drawn: a redraw replaces the
 // buttons under the operator's pointer, so it happens only when there is something new.
@@ -172,6 +195,8 @@ function select(id) {
   view.selected = id;
   view.run = null;
   view.fits = [];
+  view.curveFit = null;
+  view.curve = null;
   delete drawn.run;
   renderRun();
   drawn.runs = JSON.stringify([view.runs, view.selected]);
@@ -190,6 +215,7 @@ function listen() {
       view.pendingPoint = { run: d.run, done: d.done, at: performance.now() };
     fetchStatus();
     fetchRun();
+    fetchFrame();
   });
   for (const type of ['state', 'job', 'queue', 'suspend', 'fit', 'log'])
     es.addEventListener(type, () => refreshSoon(type !== 'log'));
@@ -304,7 +330,7 @@ function renderRun() {
   if (!r) {
     $('run-title').textContent = view.selected === null ? 'No run selected' : 'Run ' + view.selected;
     $('run-summary').textContent = '';
-    for (const id of ['lobe', 'temperature', 'exposure']) $(id).replaceChildren();
+    for (const id of ['lobe', 'temperature', 'exposure', 'monitor']) $(id).replaceChildren();
     $('fits').querySelector('tbody').replaceChildren();
     $('events').querySelector('tbody').replaceChildren();
     return;
@@ -316,9 +342,10 @@ function renderRun() {
   if (r.exposed_s !== null) s += ', exposed ' + duration(r.exposed_s);
   $('run-summary').textContent = s;
   const ms = r.measurements.filter((m) => m.side === 'transmission' || m.side === 'reflection');
-  drawLobe($('lobe'), ms);
-  drawSeries($('temperature'), ms.map((m) => m.temperature_c), false);
+  drawLobe($('lobe'), ms, view.curve && view.curve.run === r.id ? view.curve : null);
+  drawSeries($('temperature'), ms.map((m) => m.temperature_c), false, 0.5);
   drawSeries($('exposure'), ms.map((m) => m.exposure_s), true);
+  drawSeries($('monitor'), ms.map((m) => m.monitor_w), false);
   renderFits();
   renderEvents(r.events);
   $('lobe').dataset.points = ms.length;
@@ -335,7 +362,16 @@ function renderFits() {
   for (const f of view.fits) {
     const s = f.summary || {};
     const tr = document.createElement('tr');
-    cell(tr, f.model);
+    tr.dataset.fit = f.id;
+    const drawnHere = view.curve && view.curve.fit === f.id;
+    if (drawnHere) tr.className = 'selected';
+    const td = cell(tr, f.model + ' ');
+    if (s.status && s.status !== 'failed' && !drawnHere)
+      button(td, 'draw', 'draw this fit on the lobe', () => {
+        view.curveFit = f.id;
+        delete drawn.run;
+        fetchRun();
+      });
     cell(tr, s.status || '?');
     cell(tr, s.width ? (s.width_name || 'width') + ' ' + fmt(s.width.value, 4) + ' ± ' +
                           fmt(s.width.sigma, 4) : '–');
@@ -383,7 +419,8 @@ function logRange(values) {
   return [lo, hi];
 }
 
-function drawLobe(svg, ms) {
+// `curve` (optional): a stored fit's values at the points, drawn dashed through them.
+function drawLobe(svg, ms, curve) {
   svg.replaceChildren();
   const W = 640, H = 360, L = 56, R = 96, T = 12, B = 34;
   el('rect', { x: L, y: T, width: W - L - R, height: H - T - B, fill: 'none', class: 'axis' }, svg);
@@ -409,6 +446,7 @@ function drawLobe(svg, ms) {
     text(svg, X(x), H - B + 16, Math.round(x * 10) / 10);
   }
   text(svg, (L + W - R) / 2, H - 4, 'θv (deg)');
+  if (curve) text(svg, W - R + 10, H - B, '- - ' + curve.model, 'start');
   const incidences = [...new Set(ms.map((m) => m.theta_l_deg))].sort((a, b) => a - b);
   incidences.forEach((inc, k) => {
     const colour = COLOURS[k % COLOURS.length];
@@ -418,6 +456,13 @@ function drawLobe(svg, ms) {
       points: pts.map((m) => X(m.theta_v_deg) + ',' + Y(m.value)).join(' '),
       fill: 'none', stroke: colour, 'stroke-width': 1, 'stroke-opacity': 0.5,
     }, g);
+    const fitted = curve ? pts.filter((m) => curve.byIndex.has(m.index)) : [];
+    if (fitted.length > 1)
+      el('polyline', {
+        points: fitted.map((m) => X(m.theta_v_deg) + ',' + Y(curve.byIndex.get(m.index))).join(' '),
+        fill: 'none', stroke: colour, 'stroke-width': 1.5, 'stroke-dasharray': '5 3',
+        class: 'fit',
+      }, g);
     for (const m of pts) {
       el('line', { x1: X(m.theta_v_deg), x2: X(m.theta_v_deg), y1: Y(m.value - m.sigma),
                    y2: Y(m.value + m.sigma), stroke: colour, class: 'bar' }, g);
@@ -439,8 +484,9 @@ function niceStep(raw) {
   return 10 * p;
 }
 
-// One value per point, against the point's order; log scale when asked.
-function drawSeries(svg, values, log) {
+// One value per point, against the point's order; log scale when asked, else a linear axis at
+// least minSpan tall.
+function drawSeries(svg, values, log, minSpan = 0) {
   svg.replaceChildren();
   const W = 320, H = 160, L = 44, R = 8, T = 8, B = 22;
   el('rect', { x: L, y: T, width: W - L - R, height: H - T - B, fill: 'none', class: 'axis' }, svg);
@@ -454,10 +500,14 @@ function drawSeries(svg, values, log) {
     for (let d = lo; d <= hi; ++d) text(svg, L - 4, Y(Math.pow(10, d)) + 4, '1e' + d, 'end');
   } else {
     lo = Math.min(...ok); hi = Math.max(...ok);
-    if (hi - lo < 0.5) { lo -= 0.25; hi += 0.25; }
+    // At least minSpan, or a percent of the values (a monitor's watts), around what was seen.
+    const span = Math.max(minSpan, 0.02 * Math.abs((lo + hi) / 2), hi - lo, 1e-12);
+    const mid = (lo + hi) / 2;
+    lo = mid - span / 2; hi = mid + span / 2;
     Y = (x) => T + (1 - (x - lo) / (hi - lo)) * (H - T - B);
-    text(svg, L - 4, Y(lo) + 4, fmt(lo, 1), 'end');
-    text(svg, L - 4, Y(hi) + 4, fmt(hi, 1), 'end');
+    const digits = Math.max(1, Math.ceil(-Math.log10(span)) + 1);
+    text(svg, L - 4, Y(lo) + 4, fmt(lo, digits), 'end');
+    text(svg, L - 4, Y(hi) + 4, fmt(hi, digits), 'end');
   }
   const X = (i) => L + (v.length < 2 ? 0.5 : i / (v.length - 1)) * (W - L - R);
   const pts = [];
@@ -468,11 +518,212 @@ function drawSeries(svg, values, log) {
 
 // ---- controls ----------------------------------------------------------------------------------
 
+// The plan as shown in the text box (loaded from the chosen file, perhaps edited since).
 async function readPlan() {
   const f = $('plan-file').files[0];
-  if (!f) { say('choose a plan file first', true); return null; }
-  if (f.size > 1 << 20) { say(f.name + ': a plan of ' + f.size + ' bytes is too large', true); return null; }
-  return { name: f.name, text: await f.text() };
+  if (!$('plan-text').value.trim()) {
+    if (!f) { say('choose a plan file, or type a plan', true); return null; }
+    if (!(await loadPlanFile())) return null;
+  }
+  const text = $('plan-text').value;
+  if (text.length > 1 << 20) { say('a plan of ' + text.length + ' characters is too large', true); return null; }
+  return { name: f ? f.name : 'console.toml', text };
+}
+
+async function loadPlanFile() {
+  const f = $('plan-file').files[0];
+  if (!f) return false;
+  if (f.size > 1 << 20) { say(f.name + ': a plan of ' + f.size + ' bytes is too large', true); return false; }
+  $('plan-text').value = await f.text();
+  return true;
+}
+
+// ---- the camera view ---------------------------------------------------------------------------
+
+const cam = {
+  info: null,       // GET /api/v1/frame: what the shown frame is
+  pixels: null,     // its Uint16Array, width x height
+  image: null,      // its ImageData at the current contrast
+  drag: null,       // {x0, y0, x1, y1}: frame pixels, while dragging and after
+  chosen: null,     // the rectangle placed (frame pixels) and its coverage
+};
+
+const fetchFrame = throttled(async () => {
+  if (document.hidden) return;
+  let info;
+  try {
+    info = await request('GET', '/api/v1/frame');
+  } catch (e) {
+    if (e.status !== 404) $('frame-info').textContent = e.message;
+    return;
+  }
+  if (cam.info && info.seq === cam.info.seq) { cam.info = info; return; }
+  const res = await fetch('/api/v1/frame/pixels', { cache: 'no-store' });
+  window.gonioMetrics.fetches++;
+  if (!res.ok) return;
+  const buf = await res.arrayBuffer();
+  const w = Number(res.headers.get('X-Frame-Width')), h = Number(res.headers.get('X-Frame-Height'));
+  if (buf.byteLength !== w * h * 2) return;  // a newer frame came between the two requests
+  const seq = Number(res.headers.get('X-Frame-Seq'));
+  const dv = new DataView(buf);
+  const px = new Uint16Array(w * h);
+  for (let i = 0; i < px.length; ++i) px[i] = dv.getUint16(2 * i, true);
+  if (seq !== info.seq) {  // the pixels are newer than the description: describe them
+    try { info = await request('GET', '/api/v1/frame'); } catch (e) { return; }
+    if (info.seq !== seq) return;
+  }
+  cam.info = info;
+  cam.pixels = px;
+  showFrameInfo();
+  renderFrame();
+}, FRAME_MS);
+
+function showFrameInfo() {
+  const f = cam.info;
+  let s = (f.source === 'snap' ? 'snap' : 'run ' + f.run + ', point ' + f.point) + ' at ' +
+    f.at.replace('T', ' ').replace('Z', ' UTC') + ': ' + fmt(f.exposure_s, 4) + ' s, ' +
+    f.frame_width + ' × ' + f.frame_height;
+  if (f.scale > 1) s += ' shown 1:' + f.scale;
+  s += ', values ' + f.min + '–' + f.max + ' ADU';
+  if (f.saturated_pixels) s += ', ' + f.saturated_pixels + ' saturated';
+  $('frame-info').textContent = s;
+  $('frame').dataset.seq = f.seq;
+  $('frame').dataset.saturated = f.saturated_pixels;
+}
+
+// Contrast: black at the frame's least value, white at a fraction of its greatest (the slider,
+// 1 down to 1e-3), linear or log (the lobe spans four decades); saturated pixels red.
+function renderFrame() {
+  const f = cam.info, px = cam.pixels;
+  if (!f || !px) return;
+  const canvas = $('frame');
+  if (canvas.width !== f.width || canvas.height !== f.height) {
+    canvas.width = f.width;
+    canvas.height = f.height;
+  }
+  const ctx = canvas.getContext('2d');
+  const img = ctx.createImageData(f.width, f.height);
+  const lo = f.min;
+  const white = Math.max(1, (f.max - lo) * Math.pow(10, -3 * (1 - $('frame-white').value / 100)));
+  const log = $('frame-log').checked;
+  const norm = log ? 1 / Math.log1p(white) : 1 / white;
+  const d = img.data;
+  for (let i = 0; i < px.length; ++i) {
+    const j = 4 * i;
+    if (px[i] === f.saturated_mark) {
+      d[j] = 255; d[j + 1] = 0; d[j + 2] = 0; d[j + 3] = 255;
+      continue;
+    }
+    const x = Math.max(0, px[i] - lo);
+    const g = Math.round(255 * Math.min(1, (log ? Math.log1p(x) : x) * norm));
+    d[j] = d[j + 1] = d[j + 2] = g;
+    d[j + 3] = 255;
+  }
+  ctx.putImageData(img, 0, 0);
+  const box = (r, colour) => {
+    ctx.strokeStyle = colour;
+    ctx.lineWidth = Math.max(1, f.width / 256);
+    ctx.strokeRect(r.x / f.scale, r.y / f.scale, r.width / f.scale, r.height / f.scale);
+  };
+  if (f.rectangle) box(f.rectangle, '#2fd15a');
+  const r = dragRect();
+  if (r) box(r, '#ffd43b');
+}
+
+// The rectangle being dragged or placed, frame pixels, inside the frame.
+function dragRect() {
+  const d = cam.drag, f = cam.info;
+  if (!d || !f) return null;
+  const clamp = (v, hi) => Math.max(0, Math.min(hi, v));
+  const x0 = clamp(Math.min(d.x0, d.x1), f.frame_width - 1);
+  const y0 = clamp(Math.min(d.y0, d.y1), f.frame_height - 1);
+  const x1 = clamp(Math.max(d.x0, d.x1), f.frame_width - 1);
+  const y1 = clamp(Math.max(d.y0, d.y1), f.frame_height - 1);
+  return { x: x0, y: y0, width: x1 - x0 + 1, height: y1 - y0 + 1 };
+}
+
+function framePixel(ev) {
+  const f = cam.info, b = $('frame').getBoundingClientRect();
+  return {
+    x: Math.floor((ev.clientX - b.left) / b.width * f.width * f.scale),
+    y: Math.floor((ev.clientY - b.top) / b.height * f.height * f.scale),
+  };
+}
+
+function rectangleToml(r) {
+  return '[rectangle]\nx = ' + r.x + '\ny = ' + r.y + '\nwidth = ' + r.width + '\nheight = ' +
+    r.height + '\n';
+}
+
+// What the placed rectangle takes in, from goniod's bench geometry (GET /api/v1/rectangle).
+async function describeRectangle(r) {
+  const toml = rectangleToml(r);
+  cam.chosen = { rect: r, toml };
+  $('rect-toml').textContent = toml;
+  $('rect-toml').hidden = false;
+  $('rect-to-plan').disabled = false;
+  const sample = /^\s*sample\s*=\s*"([^"]*)"/m.exec($('plan-text').value);
+  let q = '?x=' + r.x + '&y=' + r.y + '&width=' + r.width + '&height=' + r.height;
+  if (sample) q += '&specimen=' + encodeURIComponent(sample[1]);
+  let s = r.width + ' × ' + r.height + ' px';
+  try {
+    const c = await request('GET', '/api/v1/rectangle' + q);
+    s += ' = ' + fmt(c.width_mm, 2) + ' × ' + fmt(c.height_mm, 2) + ' mm at the sample' +
+      ' (' + fmt(c.thickness_mm, 1) + ' mm plate); view directions spread ' +
+      fmt(c.view_spread_deg.rms, 3) + '° rms (max ' + fmt(c.view_spread_deg.max, 3) +
+      '°), light ' + fmt(c.light_spread_deg.rms, 3) + '° rms, at normal incidence';
+  } catch (e) {
+    s += ' (' + e.message + ')';
+  }
+  if (cam.chosen.rect === r) $('rect-info').textContent = s;
+}
+
+// Replaces the plan's [rectangle] table (to the next table) with the placed one, or appends it.
+function rectangleIntoPlan() {
+  if (!cam.chosen) return;
+  const box = $('plan-text');
+  const table = /^\[rectangle\][^\n]*\n?(?:(?!\s*\[)[^\n]*(?:\n|$))*/m;
+  const plan = box.value;
+  box.value = table.test(plan) ? plan.replace(table, cam.chosen.toml)
+    : plan.replace(/\n*$/, '\n\n') + cam.chosen.toml;
+  say('the plan\'s [rectangle] is now the one placed; a dry run checks it', false);
+}
+
+function wireCamera() {
+  const canvas = $('frame');
+  canvas.addEventListener('pointerdown', (ev) => {
+    if (!cam.info) return;
+    const p = framePixel(ev);
+    cam.drag = { x0: p.x, y0: p.y, x1: p.x, y1: p.y, active: true };
+    canvas.setPointerCapture(ev.pointerId);
+    renderFrame();
+  });
+  canvas.addEventListener('pointermove', (ev) => {
+    if (!cam.drag || !cam.drag.active) return;
+    const p = framePixel(ev);
+    cam.drag.x1 = p.x;
+    cam.drag.y1 = p.y;
+    renderFrame();
+  });
+  canvas.addEventListener('pointerup', (ev) => {
+    if (!cam.drag || !cam.drag.active) return;
+    const p = framePixel(ev);
+    cam.drag.x1 = p.x;
+    cam.drag.y1 = p.y;
+    cam.drag.active = false;
+    renderFrame();
+    describeRectangle(dragRect());
+  });
+  $('frame-white').addEventListener('input', renderFrame);
+  $('frame-log').addEventListener('change', renderFrame);
+  $('rect-to-plan').addEventListener('click', rectangleIntoPlan);
+  $('snap').addEventListener('click', async () => {
+    const t = Number($('snap-exposure').value);
+    $('snap').disabled = true;
+    const r = await mutate('POST', '/api/v1/camera/snap', { exposure_s: t }, 'snapped at ' + t + ' s');
+    $('snap').disabled = false;
+    if (r) fetchFrame();
+  });
 }
 
 function wire() {
@@ -523,6 +774,26 @@ function wire() {
     const r = await mutate('POST', '/api/v1/jobs', { name: plan.name, plan: plan.text, repeat });
     if (r) say(plan.name + ' queued' + (r.id ? ' as job ' + r.id : ' ' + repeat + ' times'), false);
   });
+  $('plan-file').addEventListener('change', loadPlanFile);
+  $('plan-download').addEventListener('click', () => {
+    const f = $('plan-file').files[0];
+    const a = document.createElement('a');
+    a.href = URL.createObjectURL(new Blob([$('plan-text').value], { type: 'text/plain' }));
+    a.download = f ? f.name : 'plan.toml';
+    a.click();
+    setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+  });
+  wireCamera();
+  $('fit').addEventListener('click', async () => {
+    const id = view.selected;
+    if (id === null) { say('open a run first', true); return; }
+    $('fit').disabled = true;
+    say('fitting run ' + id + '…', false);
+    const r = await mutate('POST', '/api/v1/runs/' + id + '/fit', { models: ['beckmann', 'ggx'] },
+      'run ' + id + ' fitted (Beckmann and GGX); the dashed line is the fit BIC prefers');
+    $('fit').disabled = false;
+    if (r) { delete drawn.run; fetchRun(); }
+  });
   $('follow').addEventListener('change', (ev) => {
     view.follow = ev.target.checked;
     refreshSoon(false);
@@ -533,4 +804,5 @@ wire();
 showTokenState();
 listen();
 refreshSoon(true);
-setInterval(() => refreshSoon(true), POLL_MS);
+fetchFrame();
+setInterval(() => { refreshSoon(true); fetchFrame(); }, POLL_MS);

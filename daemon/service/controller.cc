@@ -363,6 +363,42 @@ Status Controller::Move(std::int64_t id, int position) {
   return OkStatus();
 }
 
+Result<std::shared_ptr<const FrameView>> Controller::Snap(double exposure_s) {
+  if (!(exposure_s > 0 && exposure_s <= kMaxSnapS))
+    return Error{ErrorCode::kInvalidArgument, "exposure_s must be above 0 and at most " +
+                                                  std::to_string(static_cast<int>(kMaxSnapS)) +
+                                                  " s"};
+  {
+    std::lock_guard lock(mu_);
+    if (state_ != State::kIdle || current_)
+      return NotNow("the camera is in use (" + std::string(ToString(state_)) +
+                    (current_ && current_->run ? ", run " + std::to_string(*current_->run) : "") +
+                    "): a run's frames show in the view as they are taken");
+    if (camera_lent_) return NotNow("another snap is in progress");
+    camera_lent_ = true;
+  }
+  auto snap = [&]() -> Result<devices::Frame> {
+    if (camera_.Capabilities().shutter)
+      if (Status s = camera_.SetShutter(true); !s.ok()) return s.error();
+    if (Status s = camera_.SetExposure(exposure_s); !s.ok()) return s.error();
+    return camera_.Snap();
+  };
+  auto f = snap();
+  if (f.ok()) {
+    FrameView about;
+    about.source = "snap";
+    about.exposure_s = exposure_s;
+    frames_.Put(f->image, o_.engine.linear_limit_adu, std::move(about));
+  }
+  {
+    std::lock_guard lock(mu_);
+    camera_lent_ = false;
+  }
+  cv_.notify_all();
+  if (!f.ok()) return f.error();
+  return frames_.Get();
+}
+
 Status Controller::Pause() {
   std::lock_guard lock(mu_);
   if (state_ != State::kRunning)
@@ -467,7 +503,7 @@ void Controller::Worker() {
     const double now = UnixNow();
     const bool due =
         !queue_.empty() && (!queue_.front().start_at_unix || *queue_.front().start_at_unix <= now);
-    const bool start_next = state_ == State::kIdle && !current_ && due;
+    const bool start_next = state_ == State::kIdle && !current_ && due && !camera_lent_;
     const bool resume =
         resume_requested_ && current_ &&
         (state_ == State::kPaused || state_ == State::kFault || state_ == State::kSuspended);
@@ -505,6 +541,10 @@ void Controller::Worker() {
                      std::to_string(static_cast<int>(o_.suspenders.fault_give_up_s)) +
                      " s; resume retries, abort ends the run)");
       }
+      continue;
+    }
+    if (camera_lent_ && state_ == State::kIdle && !current_) {
+      cv_.wait(lock, [&] { return shutdown_ || !camera_lent_; });  // a Snap has the camera
       continue;
     }
     if (state_ == State::kIdle && !current_ && !queue_.empty()) {
@@ -599,6 +639,17 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   lock.unlock();
   acquisition::Engine engine(stages_, camera_, monitor_, db_, o_.engine);
   engine.InterruptOn(&interrupt_);
+  const std::optional<acquisition::Rectangle> rectangle = plan->rectangle;
+  engine.ShowFramesTo(
+      [this, run, rectangle](const cv::Mat1w& image, const acquisition::PlannedPoint& p, double t) {
+        FrameView about;
+        about.source = "run";
+        about.run = run;
+        about.point = p.index;
+        about.exposure_s = t;
+        about.rectangle = rectangle;
+        frames_.Put(image, o_.engine.linear_limit_adu, std::move(about));
+      });
   const gonio::Status s = engine.Run(run, *plan, stop_, [this](const Progress& p) { OnPoint(p); });
   if (!s.ok()) SafeState();
   lock.lock();

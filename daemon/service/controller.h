@@ -36,6 +36,7 @@
 #include "acquisition/storage.h"
 #include "daemon/schedule/schedule.h"
 #include "daemon/service/events.h"
+#include "daemon/service/frame_view.h"
 #include "daemon/service/job_store.h"
 
 namespace gonio::daemon {
@@ -133,6 +134,14 @@ class Controller {
   StatusReport Report() const;
   EventLog& events() { return events_; }
 
+  // The latest frame: the first averaged frame of the last point measured, or the last Snap.
+  const LatestFrame& frames() const { return frames_; }
+  // One frame at `exposure_s` (0 < exposure_s <= kMaxSnapS) between runs, for aligning the
+  // bench: only when idle with no job in hand (kFailedPrecondition otherwise; a run's frames
+  // show by themselves). No job starts until it is done. The shutter is opened first.
+  static constexpr double kMaxSnapS = 10;
+  Result<std::shared_ptr<const FrameView>> Snap(double exposure_s);
+
   // Waits until the controller is idle with an empty queue (tests, scripts), up to timeout_s.
   bool WaitIdle(double timeout_s);
 
@@ -159,6 +168,7 @@ class Controller {
   acquisition::PlanContext context_;
   ControllerOptions o_;
   EventLog events_;
+  LatestFrame frames_;
 
   mutable std::mutex mu_;
   std::condition_variable cv_;
@@ -169,6 +179,7 @@ class Controller {
   std::vector<Job> finished_;
   std::optional<acquisition::Progress> progress_;
   bool resume_requested_ = false;
+  bool camera_lent_ = false;  // a Snap has the camera: no job starts
   bool shutdown_ = false;
   double suspended_since_ = 0;
   // The device fault logged for the outage in hand ("" when none): a retry that fails the same

@@ -1,5 +1,6 @@
 #include "daemon/service/fit_run.h"
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 
@@ -9,16 +10,16 @@
 
 namespace gonio::daemon {
 
-Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
-                                   const std::vector<std::string>& models) {
-  auto specs = fitting::ParseModels(models);
-  if (!specs.ok()) return specs.error();
+namespace {
+
+// The run's measurements as the fitter's samples, each with its instrument response when the
+// run's bench geometry was stored. A stored setup that does not parse, or a reflection run, is an
+// error naming the run (nothing is stored or changed).
+Result<std::vector<fitting::Sample>> RunSamples(acquisition::Storage& db, std::int64_t run) {
   auto info = db.GetRun(run);
   if (!info.ok()) return Error{ErrorCode::kNotFound, info.error().message};
   auto rows = db.Measurements(run);
   if (!rows.ok()) return rows.error();
-  // The run's instrument response, when its bench's geometry was configured: a stored setup that
-  // does not parse is an error naming the run (the fit is not made; nothing is stored or changed).
   std::shared_ptr<const fitting::ResponseSetup> setup;
   if (info->response) {
     auto parsed = fitting::ResponseSetup::FromJson(*info->response);
@@ -45,6 +46,20 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
           setup, {r.m.sample_read_deg, r.m.arm_read_deg, r.m.azimuth_read_deg}};
     samples.push_back(s);
   }
+  return samples;
+}
+
+}  // namespace
+
+Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
+                                   const std::vector<std::string>& models) {
+  auto specs = fitting::ParseModels(models);
+  if (!specs.ok()) return specs.error();
+  auto info = db.GetRun(run);
+  if (!info.ok()) return Error{ErrorCode::kNotFound, info.error().message};
+  auto all = RunSamples(db, run);
+  if (!all.ok()) return all.error();
+  const std::vector<fitting::Sample>& samples = *all;
   fitting::ProtocolOptions po;
   po.models = *specs;
   po.base.eta = info->specimen_eta;
@@ -82,6 +97,43 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
     rf.stored_id = *id;
     out.push_back(std::move(rf));
   }
+  return out;
+}
+
+Result<std::vector<PointPrediction>> PredictRun(acquisition::Storage& db, std::int64_t run,
+                                                std::int64_t fit_id) {
+  auto fits = db.FitResults(run);
+  if (!fits.ok()) return fits.error();
+  const auto it = std::find_if(fits->begin(), fits->end(),
+                               [&](const acquisition::FitRecord& f) { return f.id == fit_id; });
+  if (it == fits->end())
+    return Error{ErrorCode::kNotFound,
+                 "run " + std::to_string(run) + " has no stored fit " + std::to_string(fit_id)};
+  const std::string where = "run " + std::to_string(run) + ", fit " + std::to_string(fit_id);
+  // The model as Describe named it ("beckmann", "beckmann (rational G1)"), its parameters as
+  // FitRun stored them.
+  const auto family = fitting::ParseFamily(it->model.substr(0, it->model.find(' ')));
+  const nlohmann::json p = nlohmann::json::parse(it->parameters, nullptr, false);
+  fitting::FitSummary f;
+  for (const char* key : {"width", "scale", "eta", "floor"})
+    if (!p.is_object() || !p.contains(key) || !p[key].is_number())
+      return Error{ErrorCode::kFailedPrecondition,
+                   where + ": its stored parameters have no number \"" + key + "\""};
+  if (!family)
+    return Error{ErrorCode::kFailedPrecondition, where + ": unknown model '" + it->model + "'"};
+  f.model.family = *family;
+  if (it->model.find("rational G1") != std::string::npos) f.model.g1 = optics::SmithG1::kRational;
+  f.width.value = p["width"].get<double>();
+  f.scale.value = p["scale"].get<double>();
+  f.eta.value = p["eta"].get<double>();
+  f.floor.value = p["floor"].get<double>();
+  auto samples = RunSamples(db, run);
+  if (!samples.ok()) return samples.error();
+  std::vector<PointPrediction> out;
+  out.reserve(samples->size());
+  for (const fitting::Sample& s : *samples)
+    out.push_back(
+        {s.line, fitting::ThetaLightDeg(s), fitting::ThetaViewDeg(s), fitting::Predict(f, s)});
   return out;
 }
 

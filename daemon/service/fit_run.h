@@ -27,4 +27,17 @@ struct RunFit {
 Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
                                    const std::vector<std::string>& models);
 
+struct PointPrediction {
+  int index = 0;  // the run's point
+  double theta_l_deg = 0, theta_v_deg = 0;
+  double value = 0;  // the fitted model's
+};
+
+// The run's stored fit `fit_id` at each of the run's measured points: through the point's
+// instrument response where the fit would use it, plus the fitted floor (fitting::Predict), so
+// that it sits beside the data as the fit saw them. kNotFound for an unknown run or fit;
+// kFailedPrecondition naming the run and fit when its stored model or parameters do not parse.
+Result<std::vector<PointPrediction>> PredictRun(acquisition::Storage& db, std::int64_t run,
+                                                std::int64_t fit_id);
+
 }  // namespace gonio::daemon

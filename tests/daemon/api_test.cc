@@ -22,6 +22,7 @@
 
 #include "daemon/api/http_api.h"
 #include "daemon/service/controller.h"
+#include "fitting/response.h"
 #include "tests/support/raw_http.h"
 #include "tests/support/sim_instrument.h"
 
@@ -71,6 +72,9 @@ class DaemonApi : public ::testing::Test {
     ctx.specimens = {{"ground-glass-G1", "glass", 6, 1.51, std::nullopt}};
     ctx.axes = inst.axes;
     ctx.image_width = ctx.image_height = 512;
+    // The bench's geometry as a config's [bench] gives it (the defaults: 0.16 mm per pixel at
+    // the sample, a 512 x 512 sensor), for the rectangle's coverage.
+    ctx.response = fitting::ResponseSetup{};
     ControllerOptions co;
     co.engine.linear_limit_adu = 40000;
     co.suspenders = Suspend();
@@ -259,6 +263,109 @@ TEST_F(DaemonApi, TheConsoleIsServedFromTheApisAddressAndNamesNothingElse) {
   }
   // The page does nothing the API does not: a mutation from it without the token is refused.
   EXPECT_EQ(client->Post("/console/", "x", "text/plain")->status, 401);
+}
+
+// The console's live view (issue #20): no frame until one is taken; a snap between runs (with the
+// token, a bounded exposure, refused while a run has the camera); a run's frames as its points
+// are measured, with the run's rectangle; the pixels as raw little-endian uint16.
+TEST_F(DaemonApi, TheLatestFrameComesFromSnapsBetweenRunsAndFromTheRunsPoints) {
+  auto [none, none_body] = Get("/api/v1/frame");
+  EXPECT_EQ(none, 404);
+  EXPECT_NE(none_body.dump().find("no frame yet"), std::string::npos) << none_body.dump();
+  EXPECT_EQ(client->Get("/api/v1/frame/pixels")->status, 404);
+
+  EXPECT_EQ(
+      client->Post("/api/v1/camera/snap", R"({"exposure_s": 0.05})", "application/json")->status,
+      401);
+  for (const char* bad : {R"({})", R"({"exposure_s": 0})", R"({"exposure_s": -1})",
+                          R"({"exposure_s": 10.5})", R"({"exposure_s": "1"})"}) {
+    auto [code, body] = Post("/api/v1/camera/snap", bad, Auth());
+    EXPECT_EQ(code, 400) << bad;
+    EXPECT_NE(body.dump().find("exposure_s"), std::string::npos) << body.dump();
+  }
+
+  auto [snapped, snap] = Post("/api/v1/camera/snap", json{{"exposure_s", 0.05}});
+  ASSERT_EQ(snapped, 200) << snap.dump();
+  EXPECT_EQ(snap["source"], "snap");
+  EXPECT_TRUE(snap["run"].is_null());
+  EXPECT_EQ(snap["frame_width"], 512);
+  EXPECT_EQ(snap["frame_height"], 512);
+  EXPECT_EQ(snap["scale"], 1);
+  EXPECT_DOUBLE_EQ(snap["exposure_s"].get<double>(), 0.05);
+  auto pixels = client->Get("/api/v1/frame/pixels");
+  ASSERT_TRUE(pixels);
+  ASSERT_EQ(pixels->status, 200);
+  EXPECT_EQ(pixels->get_header_value("X-Frame-Seq"), std::to_string(snap["seq"].get<int>()));
+  ASSERT_EQ(pixels->body.size(), 512u * 512u * 2u);
+  // The description's range is the pixels' (little-endian), saturated blocks left out.
+  int lo = 65535, hi = 0;
+  for (std::size_t i = 0; i < pixels->body.size(); i += 2) {
+    const int v = static_cast<unsigned char>(pixels->body[i]) |
+                  (static_cast<unsigned char>(pixels->body[i + 1]) << 8);
+    if (v == snap["saturated_mark"].get<int>()) continue;
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
+  }
+  EXPECT_EQ(lo, snap["min"].get<int>());
+  EXPECT_EQ(hi, snap["max"].get<int>());
+  EXPECT_GT(hi, lo) << "a frame of the lit sample is not flat";
+
+  const auto job = SubmitPlan();
+  ASSERT_TRUE(WaitFor([&] { return Done() >= 1; }, 60));
+  auto [busy, busy_body] = Post("/api/v1/camera/snap", json{{"exposure_s", 0.05}});
+  if (State() == "running") {
+    EXPECT_EQ(busy, 409) << busy_body.dump();
+    EXPECT_NE(busy_body.dump().find("in use"), std::string::npos) << busy_body.dump();
+  }
+  auto [code, frame] = Get("/api/v1/frame");
+  ASSERT_EQ(code, 200);
+  EXPECT_EQ(frame["source"], "run");
+  EXPECT_GT(frame["seq"].get<int>(), snap["seq"].get<int>());
+  EXPECT_FALSE(frame["point"].is_null());
+  EXPECT_EQ(frame["rectangle"], (json{{"x", 253}, {"y", 246}, {"width", 6}, {"height", 19}}));
+  const std::int64_t run = FinishedRun(job);
+  EXPECT_EQ(Get("/api/v1/frame").second["run"], run);
+  // Idle again: the camera is free for a snap, and no job was left waiting on it.
+  auto [again, again_body] = Post("/api/v1/camera/snap", json{{"exposure_s", 0.02}});
+  EXPECT_EQ(again, 200) << again_body.dump();
+  EXPECT_GT(again_body["seq"].get<int>(), frame["seq"].get<int>());
+  const auto next = SubmitPlan();
+  FinishedRun(next);
+}
+
+// What a rectangle placed on the frame takes in, from the bench's geometry: its size at the
+// sample (pixels x pitch) and the spread of directions, which grows with it (nearly linearly at
+// these sizes: the lens images the sample's centre with little distortion).
+TEST_F(DaemonApi, ARectanglesCoverageIsItsSizeAtTheSampleAndTheSpreadItImplies) {
+  const fitting::BenchOptics bench;  // what the fixture's context has
+  auto [code, small] = Get("/api/v1/rectangle?x=253&y=246&width=6&height=19");
+  ASSERT_EQ(code, 200) << small.dump();
+  EXPECT_NEAR(small["width_mm"].get<double>(), 6 * bench.mm_per_pixel, 1e-12);
+  EXPECT_NEAR(small["height_mm"].get<double>(), 19 * bench.mm_per_pixel, 1e-12);
+  const double rms = small["view_spread_deg"]["rms"].get<double>();
+  EXPECT_GT(rms, 0);
+  EXPECT_GE(small["view_spread_deg"]["max"].get<double>(), rms);
+  auto [code10, large] = Get("/api/v1/rectangle?x=226&y=161&width=60&height=190");
+  ASSERT_EQ(code10, 200) << large.dump();
+  const double ratio = large["view_spread_deg"]["rms"].get<double>() / rms;
+  EXPECT_GT(ratio, 7);
+  EXPECT_LT(ratio, 13);
+  // The specimen's plate thickness comes from the catalogue.
+  auto [named, with] =
+      Get("/api/v1/rectangle?x=253&y=246&width=6&height=19&specimen=ground-glass-G1");
+  EXPECT_EQ(named, 200);
+  EXPECT_EQ(with["thickness_mm"], 6.0);
+  // Errors name the problem.
+  for (const auto& [query, names] : std::vector<std::pair<std::string, std::string>>{
+           {"?x=253&y=246&width=6", "height"},
+           {"?x=253&y=246&width=0&height=19", "width"},
+           {"?x=abc&y=246&width=6&height=19", "'abc'"},
+           {"?x=600&y=246&width=6&height=19", "rectangle"},
+           {"?x=253&y=246&width=6&height=19&specimen=nope", "'nope'"}}) {
+    auto [status, body] = Get("/api/v1/rectangle" + query);
+    EXPECT_EQ(status, 400) << query;
+    EXPECT_NE(body.dump().find(names), std::string::npos) << query << ": " << body.dump();
+  }
 }
 
 TEST_F(DaemonApi, JobsRunInQueueOrderAndQueuedOnesCanBeMovedOrCancelled) {

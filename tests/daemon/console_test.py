@@ -7,8 +7,11 @@ What it checks, as an operator would see it:
   - the page loads from goniod's address, read-only without the token; a change asked from the
     page without the token is refused (401, said on the page) and so is one from a plain HTTP
     client; the token typed once is never shown on the page nor put in a URL;
+  - the camera view: a snap between runs shows a frame (not blank); a rectangle dragged on it is
+    described in mm with its spread of directions, and put into the plan's text; the run then
+    measures through it (its frames show it);
   - a plan's dry run shows its points and time, and queues nothing; submitted, its points appear
-    in the lobe plot as they are stored, with the temperature and exposure plots beside;
+    in the lobe plot as they are stored, with the temperature, exposure and monitor plots beside;
   - pause stops the run after its point (no new points while paused), resume continues it, and
     the run finishes with every point drawn; abort asks first, "keep running" keeps it running;
   - a past run opens with its events, and its CSV link gives the run's CSV.
@@ -26,6 +29,7 @@ import urllib.request
 
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 
 url, token, plan, outdir = sys.argv[1:5]
@@ -129,6 +133,50 @@ try:
     check(token not in driver.page_source and token not in driver.current_url,
           "the token is nowhere on the page or in its URL")
 
+    # The camera view: a snap between runs, then a rectangle dragged about the sample's centre.
+    check(driver.find_element(By.ID, "plan-text").get_attribute("value").startswith("sample"),
+          "the chosen plan file is shown in the plan's text box")
+    driver.find_element(By.ID, "snap-exposure").clear()
+    driver.find_element(By.ID, "snap-exposure").send_keys("0.1")
+    driver.find_element(By.ID, "snap").click()
+    wait_for(lambda: text("frame-info").startswith("snap"), "a snap shows its frame")
+    frame = driver.find_element(By.ID, "frame")
+    lit = driver.execute_script("""
+        const c = document.getElementById('frame');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let lit = 0, levels = new Set();
+        for (let i = 0; i < d.length; i += 4) { if (d[i] > 0) ++lit; levels.add(d[i]); }
+        return [c.width, c.height, lit, levels.size];""")
+    check(lit[0] == 512 and lit[1] == 512, f"the frame is shown at the camera's size ({lit[:2]})")
+    check(lit[2] > 1000 and lit[3] > 20, f"the frame is not blank ({lit[2]} lit, {lit[3]} levels)")
+    # Page offsets of frame pixels (247, 238) and (259, 262), from the element's centre.
+    box = driver.execute_script(
+        "const b = document.getElementById('frame').getBoundingClientRect();"
+        "return [b.width, b.height];")
+    def offset(px, py):
+        return (round((px + 0.5) / 512 * box[0] - box[0] / 2),
+                round((py + 0.5) / 512 * box[1] - box[1] / 2))
+    (ax, ay), (bx, by) = offset(247, 238), offset(259, 262)
+    ActionChains(driver).move_to_element_with_offset(frame, ax, ay).click_and_hold() \
+        .move_by_offset((bx - ax) // 2, (by - ay) // 2).move_by_offset(bx - ax - (bx - ax) // 2,
+                                                                     by - ay - (by - ay) // 2) \
+        .release().perform()
+    info = wait_for(lambda: "mm at the sample" in text("rect-info") and text("rect-info"),
+                    "the dragged rectangle is described in mm with its spread of directions")
+    print("rectangle:", info)
+    check("view directions spread" in info, f"the spread of view directions is shown: {info!r}")
+    toml = driver.find_element(By.ID, "rect-toml").text
+    dragged = dict(line.split(" = ") for line in toml.splitlines()[1:])
+    dragged = {k: int(v) for k, v in dragged.items()}
+    check(abs(dragged["x"] - 247) <= 2 and abs(dragged["width"] - 13) <= 3 and
+          abs(dragged["height"] - 25) <= 3, f"the rectangle is where it was dragged ({dragged})")
+    driver.find_element(By.ID, "rect-to-plan").click()
+    plan_text = driver.find_element(By.ID, "plan-text").get_attribute("value")
+    check(f"\nx = {dragged['x']}\n" in plan_text and
+          f"height = {dragged['height']}" in plan_text and "x = 253" not in plan_text,
+          f"the plan's [rectangle] is the dragged one:\n{plan_text}")
+    driver.save_screenshot(f"{outdir}/console_rectangle.png")
+
     # Dry run: what the plan would do, nothing queued.
     driver.find_element(By.ID, "dry-run").click()
     dry = wait_for(lambda: "points" in text("dry-run-result") and text("dry-run-result"),
@@ -144,8 +192,14 @@ try:
     wait_for(lambda: points() >= 2, "points appear in the lobe plot", timeout=90)
     driver.save_screenshot(f"{outdir}/console_running.png")
     check(len(driver.find_elements(By.CSS_SELECTOR, "#temperature polyline")) == 1 and
-          len(driver.find_elements(By.CSS_SELECTOR, "#exposure polyline")) == 1,
-          "the temperature and exposure plots are drawn")
+          len(driver.find_elements(By.CSS_SELECTOR, "#exposure polyline")) == 1 and
+          len(driver.find_elements(By.CSS_SELECTOR, "#monitor polyline")) == 1,
+          "the temperature, exposure and monitor plots are drawn")
+    # The run's frames replace the snap, with the run's rectangle: the one dragged.
+    wait_for(lambda: text("frame-info").startswith("run "), "the run's frames show in the view")
+    code, body, _ = http("GET", "/api/v1/frame")
+    check(code == 200 and json.loads(body)["rectangle"] == dragged,
+          f"the run measures through the dragged rectangle ({body[:300]})")
     check("Run " in text("run-title"), f"the run is named: {text('run-title')!r}")
 
     # Pause: no new point while paused; resume.
@@ -179,6 +233,27 @@ try:
     incidences = {g.get_attribute("data-incidence")
                   for g in driver.find_elements(By.CSS_SELECTOR, "#lobe g[data-incidence]")}
     check(incidences == {"0", "30"}, f"one series per incidence ({incidences})")
+    # Fit the run from the page: both fits listed, the one BIC prefers drawn through the points.
+    driver.find_element(By.ID, "fit").click()
+    wait_for(lambda: len(driver.find_elements(By.CSS_SELECTOR, "#fits tr[data-fit]")) == 2,
+             "the page's fit stores Beckmann and GGX and lists them", timeout=120)
+    wait_for(lambda: len(driver.find_elements(By.CSS_SELECTOR, "#lobe polyline.fit")) == 2,
+             "the fit is drawn on the lobe, one dashed line per incidence")
+    shown_fit = driver.find_element(By.CSS_SELECTOR, "#fits tr.selected").get_attribute("data-fit")
+    code, body, _ = http("GET", f"/api/v1/runs/1/fits/{shown_fit}/prediction")
+    pred = json.loads(body)["points"] if code == 200 else []
+    check(len(pred) == int(total), f"the fit's prediction has every point ({code}, {len(pred)})")
+    code, body, _ = http("GET", "/api/v1/runs/1")
+    measured = {m["index"]: m["value"] for m in json.loads(body)["measurements"]}
+    ratios = sorted(p["value"] / measured[p["index"]] for p in pred if measured[p["index"]] > 0)
+    check(ratios and 0.8 < ratios[len(ratios) // 2] < 1.25,
+          f"the drawn fit goes through the points (median model/value {ratios[len(ratios) // 2]:.3f})"
+          if ratios else "no ratios")
+    # The other fit can be drawn instead.
+    other = driver.find_element(By.CSS_SELECTOR, "#fits tr[data-fit]:not(.selected) button")
+    other.click()
+    wait_for(lambda: driver.find_element(By.CSS_SELECTOR, "#fits tr.selected")
+             .get_attribute("data-fit") != shown_fit, "'draw' draws the other fit")
     driver.save_screenshot(f"{outdir}/console_done.png")
 
     # A second run, aborted from the page after the question.

@@ -109,8 +109,30 @@ TEST(FitRun, ARunsStoredResponseIsUsedAndACorruptOneIsRefusedChangingNothing) {
     auto before = (*db)->Measurements(*run);
     ASSERT_TRUE(before.ok());
 
+    // The stored fit at every point (the console's dashed line): through the data it was fitted to.
+    auto predicted = PredictRun(**db, *run, (*stored)[0].id);
+    ASSERT_TRUE(predicted.ok()) << predicted.error().message;
+    ASSERT_EQ(predicted->size(), before->size());
+    for (std::size_t i = 0; i < before->size(); ++i) {
+      EXPECT_EQ((*predicted)[i].index, (*before)[i].point.index);
+      EXPECT_NEAR((*predicted)[i].theta_v_deg, (*before)[i].point.theta_v_deg, 1e-9);
+      EXPECT_NEAR((*predicted)[i].value / (*before)[i].m.value, 1, 0.05) << i;
+    }
+    auto unknown = PredictRun(**db, *run, (*stored)[0].id + 100);
+    ASSERT_FALSE(unknown.ok());
+    EXPECT_EQ(unknown.error().code, ErrorCode::kNotFound);
+
     sqlite3* raw = nullptr;
     ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK);
+    // A stored fit whose parameters do not parse is named, not drawn as some number.
+    ASSERT_EQ(sqlite3_exec(raw, "UPDATE fit_results SET parameters='{\"width\": \"x\"}'", nullptr,
+                           nullptr, nullptr),
+              SQLITE_OK);
+    auto damaged = PredictRun(**db, *run, (*stored)[0].id);
+    ASSERT_FALSE(damaged.ok());
+    EXPECT_EQ(damaged.error().code, ErrorCode::kFailedPrecondition);
+    EXPECT_NE(damaged.error().message.find("\"width\""), std::string::npos)
+        << damaged.error().message;
     ASSERT_EQ(
         sqlite3_exec(raw, "UPDATE runs SET response='{\"bench\": 3}'", nullptr, nullptr, nullptr),
         SQLITE_OK);

@@ -110,11 +110,11 @@ std::optional<json> Body(const httplib::Request& req, httplib::Response& res) {
   return j;
 }
 
-// The path's id ({id}: digits only, by the route's pattern), or a 400 naming it when it does not
-// fit in 64 bits.
+// The path's id ({id}: digits only, by the route's pattern; `group` counts the pattern's groups
+// from 1), or a 400 naming it when it does not fit in 64 bits.
 std::optional<std::int64_t> IdOf(const httplib::Request& req, httplib::Response& res,
-                                 const char* what) {
-  const std::string text = req.matches[1].str();
+                                 const char* what, int group = 1) {
+  const std::string text = req.matches[group].str();
   std::int64_t id = 0;
   const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), id);
   if (ec != std::errc() || end != text.data() + text.size()) {
@@ -559,28 +559,25 @@ void ApiServer::RouteFits() {
             Reply(res, 200, {{"fits", list}});
           });
   // A stored fit at each of the run's points, for drawing it beside the data (the console).
-  srv.Get(R"(/api/v1/runs/(\d+)/fits/(\d+)/prediction)", [this](const httplib::Request& req,
-                                                                httplib::Response& res) {
-    const auto id = IdOf(req, res, "run");
-    if (!id) return;
-    std::int64_t fit = 0;
-    const std::string text = req.matches[2].str();
-    if (const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), fit);
-        ec != std::errc() || end != text.data() + text.size())
-      return ReplyError(
-          res, 400, "the fit id '" + text.substr(0, 32) + "' is not a number of at most 18 digits");
-    if (auto info = reader_->GetRun(*id); !info.ok())
-      return ReplyError(res, 404, info.error().message);
-    auto points = PredictRun(*reader_, *id, fit);
-    if (!points.ok()) return ReplyError(res, points.error());
-    json list = json::array();
-    for (const PointPrediction& p : *points)
-      list.push_back({{"index", p.index},
-                      {"theta_l_deg", p.theta_l_deg},
-                      {"theta_v_deg", p.theta_v_deg},
-                      {"value", p.value}});
-    Reply(res, 200, {{"run", *id}, {"fit", fit}, {"points", list}});
-  });
+  srv.Get(R"(/api/v1/runs/(\d+)/fits/(\d+)/prediction)",
+          [this](const httplib::Request& req, httplib::Response& res) {
+            const auto id = IdOf(req, res, "run");
+            if (!id) return;
+            const auto fit_id = IdOf(req, res, "fit", 2);
+            if (!fit_id) return;
+            const std::int64_t fit = *fit_id;
+            if (auto info = reader_->GetRun(*id); !info.ok())
+              return ReplyError(res, 404, info.error().message);
+            auto points = PredictRun(*reader_, *id, fit);
+            if (!points.ok()) return ReplyError(res, points.error());
+            json list = json::array();
+            for (const PointPrediction& p : *points)
+              list.push_back({{"index", p.index},
+                              {"theta_l_deg", p.theta_l_deg},
+                              {"theta_v_deg", p.theta_v_deg},
+                              {"value", p.value}});
+            Reply(res, 200, {{"run", *id}, {"fit", fit}, {"points", list}});
+          });
   srv.Post(R"(/api/v1/runs/(\d+)/fit)",
            [this](const httplib::Request& req, httplib::Response& res) {
              auto body = Body(req, res);

@@ -698,22 +698,18 @@ function wireCamera() {
     canvas.setPointerCapture(ev.pointerId);
     renderFrame();
   });
-  canvas.addEventListener('pointermove', (ev) => {
+  // The drag's far corner follows the pointer; on release the rectangle is described.
+  const follow = (ev, last) => {
     if (!cam.drag || !cam.drag.active) return;
     const p = framePixel(ev);
     cam.drag.x1 = p.x;
     cam.drag.y1 = p.y;
+    cam.drag.active = !last;
     renderFrame();
-  });
-  canvas.addEventListener('pointerup', (ev) => {
-    if (!cam.drag || !cam.drag.active) return;
-    const p = framePixel(ev);
-    cam.drag.x1 = p.x;
-    cam.drag.y1 = p.y;
-    cam.drag.active = false;
-    renderFrame();
-    describeRectangle(dragRect());
-  });
+    if (last) describeRectangle(dragRect());
+  };
+  canvas.addEventListener('pointermove', (ev) => follow(ev, false));
+  canvas.addEventListener('pointerup', (ev) => follow(ev, true));
   $('frame-white').addEventListener('input', renderFrame);
   $('frame-log').addEventListener('change', renderFrame);
   $('rect-to-plan').addEventListener('click', rectangleIntoPlan);

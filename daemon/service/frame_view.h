@@ -22,12 +22,12 @@ namespace gonio::daemon {
 inline constexpr std::uint16_t kSaturatedMark = 65535;
 
 struct FrameView {
-  std::uint64_t seq = 0;               // 1, 2, ... in this process; a new frame, a new number
-  std::string source;                  // "run" or "snap"
-  std::optional<std::int64_t> run;     // the run whose point it was
-  std::optional<int> point;            // the point's index
+  std::uint64_t seq = 0;            // 1, 2, ... in this process; a new frame, a new number
+  std::string source;               // "run" or "snap"
+  std::optional<std::int64_t> run;  // the run whose point it was
+  std::optional<int> point;         // the point's index
   double exposure_s = 0;
-  std::string at;                      // UTC, ISO 8601
+  std::string at;                         // UTC, ISO 8601
   int frame_width = 0, frame_height = 0;  // the camera's frames (region and binning applied)
   int scale = 1;                          // frame pixels per view pixel, each way
   int width = 0, height = 0;              // the view

@@ -32,7 +32,7 @@ TEST(FrameView, BlocksAreMeansAndTheScaleKeepsBothSidesWithinTheBound) {
 
 TEST(FrameView, OneSaturatedPixelMarksItsBlockAndIsCounted) {
   cv::Mat1w image(513, 513, std::uint16_t{100});
-  image(300, 17) = 50000;  // above the 40000 ADU linear limit
+  image(300, 17) = 50000;   // above the 40000 ADU linear limit
   image(512, 512) = 40000;  // at it: also past the linear range (the last, partial block)
   const FrameView v = Downscale(image, 256, 40000);
   EXPECT_EQ(v.scale, 3);

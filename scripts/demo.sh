@@ -55,8 +55,11 @@ sed -e "s/^port = 5020/port = $(cat "$work/port")/" -e "s/^port = 5021/port = $(
   config/instrument.toml > "$work/instrument.toml"
 
 echo "== starting the daemon (goniod; log in $work/goniod.log) =="
+# The instrument's plans, which the console offers: the example plans.
+mkdir -p "$work/plans"
+cp config/plan_*.toml "$work/plans/"
 build/daemon/goniod -c "$work/instrument.toml" --samples config/samples.toml \
-  --db "$work/runs.sqlite" --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
+  --plans "$work/plans" --db "$work/runs.sqlite" --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
 daemon=$!
 for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
 [[ -s "$work/apiport" ]] || { echo "goniod did not start:"; cat "$work/goniod.log"; exit 1; }

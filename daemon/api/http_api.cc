@@ -248,6 +248,11 @@ Result<std::unique_ptr<ApiServer>> ApiServer::Start(Controller& controller, cons
   auto reader = acquisition::Storage::Open(o.db_path);
   if (!reader.ok()) return reader.error();
   s->reader_ = std::move(*reader);
+  if (!o.plans_dir.empty()) {
+    auto plans = PlanCatalogue::Open(o.plans_dir);
+    if (!plans.ok()) return plans.error();
+    s->plans_ = std::move(*plans);
+  }
   s->server_ = std::make_unique<httplib::Server>();
   // Event streams hold a thread each for as long as they are open: the pool has room for every
   // stream the API admits and kRequestThreads more, so requests are never queued behind streams.
@@ -293,6 +298,7 @@ void ApiServer::Routes() {
   RouteFits();
   RouteEvents();
   RouteCamera();
+  RoutePlans();
   RouteConsole();
 }
 
@@ -741,6 +747,30 @@ void ApiServer::RouteCamera() {
                {"view_spread_deg", {{"rms", cover->view_rms_deg}, {"max", cover->view_max_deg}}},
                {"light_spread_deg", {{"rms", cover->light_rms_deg}, {"max", cover->light_max_deg}}},
                {"rays", cover->rays}});
+  });
+}
+
+// The instrument's plans (goniod --plans DIR), for submitting without a file at hand.
+void ApiServer::RoutePlans() {
+  httplib::Server& srv = *server_;
+  srv.Get("/api/v1/plans", [this](const httplib::Request&, httplib::Response& res) {
+    if (!plans_) return Reply(res, 200, {{"plans", json::array()}, {"configured", false}});
+    std::size_t left_out = 0;
+    auto list = plans_->List(controller_->context(), &left_out);
+    if (!list.ok()) return ReplyError(res, list.error());
+    json out = json::array();
+    for (const CataloguePlan& p : *list)
+      out.push_back({{"name", p.name},
+                     {"description", p.description},
+                     {"valid", p.valid},
+                     {"error", p.error}});
+    Reply(res, 200, {{"plans", out}, {"configured", true}, {"left_out", left_out}});
+  });
+  srv.Get(R"(/api/v1/plans/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
+    if (!plans_) return ReplyError(res, 404, "goniod was started without --plans: no plans here");
+    auto text = plans_->Read(req.matches[1].str());
+    if (!text.ok()) return ReplyError(res, text.error());
+    Reply(res, 200, {{"name", req.matches[1].str()}, {"text", *text}});
   });
 }
 

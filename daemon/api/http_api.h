@@ -15,12 +15,14 @@
 
 #include <atomic>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 
 #include "acquisition/storage.h"
 #include "common/result.h"
 #include "daemon/service/controller.h"
+#include "daemon/service/plan_catalogue.h"
 
 namespace httplib {
 class Server;
@@ -35,6 +37,7 @@ struct ApiOptions {
   std::string db_path;          // the runs database, opened again read-side for the API's queries
   int max_stream_clients = 16;  // open event streams; more get 503
   std::size_t max_body_bytes = 4u << 20;  // a schedule with its plans fits many times over
+  std::string plans_dir{};                // the instrument's plans (GET /api/v1/plans); empty: none
 };
 
 class ApiServer {
@@ -58,12 +61,15 @@ class ApiServer {
   void RouteRuns();
   void RouteFits();
   void RouteEvents();
-  void RouteCamera();   // the latest frame, a snap between runs, a rectangle's coverage
+  void RouteCamera();
+  void RoutePlans();    // the instrument's plans (--plans)   // the latest frame, a snap between
+                        // runs, a rectangle's coverage
   void RouteConsole();  // the operator's page (daemon/console/)
 
   Controller* controller_ = nullptr;
   ApiOptions o_;
-  std::unique_ptr<acquisition::Storage> reader_;  // the API's own connection (WAL: no blocking)
+  std::unique_ptr<acquisition::Storage> reader_;
+  std::optional<PlanCatalogue> plans_;  // the API's own connection (WAL: no blocking)
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
   int port_ = 0;

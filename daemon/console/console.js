@@ -488,7 +488,7 @@ function niceStep(raw) {
 // least minSpan tall.
 function drawSeries(svg, values, log, minSpan = 0) {
   svg.replaceChildren();
-  const W = 320, H = 160, L = 44, R = 8, T = 8, B = 22;
+  const W = 320, H = 160, L = 58, R = 8, T = 8, B = 22;  // L: room for 0.001218
   el('rect', { x: L, y: T, width: W - L - R, height: H - T - B, fill: 'none', class: 'axis' }, svg);
   const v = values.map((x) => (x === null || x === undefined ? NaN : x));
   const ok = v.filter((x) => isFinite(x) && (!log || x > 0));
@@ -518,16 +518,17 @@ function drawSeries(svg, values, log, minSpan = 0) {
 
 // ---- controls ----------------------------------------------------------------------------------
 
-// The plan as shown in the text box (loaded from the chosen file, perhaps edited since).
+// The plan as shown in the text box (loaded from the chosen file or the instrument's plans,
+// perhaps edited since), named after where it came from.
+let planName = null;
 async function readPlan() {
-  const f = $('plan-file').files[0];
   if (!$('plan-text').value.trim()) {
-    if (!f) { say('choose a plan file, or type a plan', true); return null; }
+    if (!$('plan-file').files[0]) { say('choose a plan, or type one', true); return null; }
     if (!(await loadPlanFile())) return null;
   }
   const text = $('plan-text').value;
   if (text.length > 1 << 20) { say('a plan of ' + text.length + ' characters is too large', true); return null; }
-  return { name: f ? f.name : 'console.toml', text };
+  return { name: planName || 'console.toml', text };
 }
 
 async function loadPlanFile() {
@@ -535,7 +536,70 @@ async function loadPlanFile() {
   if (!f) return false;
   if (f.size > 1 << 20) { say(f.name + ': a plan of ' + f.size + ' bytes is too large', true); return false; }
   $('plan-text').value = await f.text();
+  planName = f.name;
+  $('plan-catalogue').value = '';
   return true;
+}
+
+// The instrument's plans (goniod --plans): offered when goniod has them; an invalid one is listed
+// with its error and cannot be chosen.
+async function loadCatalogue() {
+  let r;
+  try { r = await request('GET', '/api/v1/plans'); } catch (e) { return; }
+  const sel = $('plan-catalogue');
+  sel.hidden = !r.configured || r.plans.length === 0;
+  for (const p of r.plans) {
+    const o = document.createElement('option');
+    o.value = p.name;
+    o.textContent = p.name + (p.description ? ' - ' + p.description : '');
+    if (!p.valid) { o.disabled = true; o.title = p.error; o.textContent += ' (invalid)'; }
+    sel.appendChild(o);
+  }
+}
+
+async function loadCataloguePlan() {
+  const name = $('plan-catalogue').value;
+  if (!name) return;
+  try {
+    const p = await request('GET', '/api/v1/plans/' + encodeURIComponent(name));
+    $('plan-text').value = p.text;
+    planName = p.name;
+    $('plan-file').value = '';
+  } catch (e) { say(e.message, true); }
+}
+
+// A schedule and its plans: the files chosen, and for a plan it names that was not chosen, the
+// instrument's plan of that name (the API's error names one found nowhere).
+async function readSchedule() {
+  const f = $('schedule-file').files[0];
+  if (!f) { say('choose a schedule file first', true); return null; }
+  const files = [f, ...$('schedule-plans').files];
+  const big = files.find((x) => x.size > 1 << 20);
+  if (big) { say(big.name + ': ' + big.size + ' bytes is too large', true); return null; }
+  const text = await f.text();
+  const plans = {};
+  for (const p of $('schedule-plans').files) plans[p.name] = await p.text();
+  for (const m of text.matchAll(/^\s*plan\s*=\s*"([^"]+)"/gm)) {
+    if (plans[m[1]] !== undefined || $('plan-catalogue').hidden) continue;
+    try {
+      plans[m[1]] = (await request('GET', '/api/v1/plans/' + encodeURIComponent(m[1]))).text;
+    } catch (e) { /* the schedule's check names the plan that is missing */ }
+  }
+  return { name: f.name, schedule: text, plans };
+}
+
+function showSchedule(r, queued) {
+  const lines = r.jobs.map((j) => {
+    if (queued) return 'job ' + j.id + ': ' + j.name;
+    let s = j.plan + ' (line ' + j.line + ') × ' + j.repeat + ': ' + j.points + ' points' +
+      (j.skipped ? ' (' + j.skipped + ' skipped)' : '') + ', about ' + duration(j.estimate_s) +
+      ' each (' + j.estimate_basis + ')';
+    if (j.cooler_setpoint_c !== null) s += '; cools to ' + j.cooler_setpoint_c + ' °C first';
+    if (j.fit && j.fit.length) s += '; fits ' + j.fit.join(', ');
+    return s;
+  });
+  $('schedule-result').textContent = lines.join('\n') + '\nabout ' + duration(r.estimate_s) +
+    ' in all';
 }
 
 // ---- the camera view ---------------------------------------------------------------------------
@@ -771,11 +835,30 @@ function wire() {
     if (r) say(plan.name + ' queued' + (r.id ? ' as job ' + r.id : ' ' + repeat + ' times'), false);
   });
   $('plan-file').addEventListener('change', loadPlanFile);
+  $('plan-catalogue').addEventListener('change', loadCataloguePlan);
+  $('schedule-dry-run').addEventListener('click', async () => {
+    const s = await readSchedule();
+    if (!s) return;
+    const r = await mutate('POST', '/api/v1/schedules', { name: s.name, schedule: s.schedule,
+                                                         plans: s.plans, dry_run: true });
+    if (!r) return;
+    showSchedule(r, false);
+    say('schedule dry run: nothing was queued', false);
+  });
+  $('schedule-form').addEventListener('submit', async (ev) => {
+    ev.preventDefault();
+    const s = await readSchedule();
+    if (!s) return;
+    const r = await mutate('POST', '/api/v1/schedules',
+      { name: s.name, schedule: s.schedule, plans: s.plans });
+    if (!r) return;
+    showSchedule(r, true);
+    say(s.name + ': ' + r.jobs.length + ' job(s) queued', false);
+  });
   $('plan-download').addEventListener('click', () => {
-    const f = $('plan-file').files[0];
     const a = document.createElement('a');
     a.href = URL.createObjectURL(new Blob([$('plan-text').value], { type: 'text/plain' }));
-    a.download = f ? f.name : 'plan.toml';
+    a.download = planName || 'plan.toml';
     a.click();
     setTimeout(() => URL.revokeObjectURL(a.href), 1000);
   });
@@ -801,4 +884,5 @@ showTokenState();
 listen();
 refreshSoon(true);
 fetchFrame();
+loadCatalogue();
 setInterval(() => { refreshSoon(true); fetchFrame(); }, POLL_MS);

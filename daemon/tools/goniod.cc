@@ -63,7 +63,7 @@ void LogEvents(daemon::EventLog& events) {
 int main(int argc, char** argv) {
   CLI::App app{"goniod: the gonioreflectometer daemon (local HTTP API, job queue, run control)"};
   std::string config_path, samples_path = "config/samples.toml", db_path, token_file, port_file;
-  std::string host = "127.0.0.1", on_start = "resume";
+  std::string host = "127.0.0.1", on_start = "resume", plans_dir;
   int port = 8470;
   std::optional<double> setpoint, floor_w;
   double band = 2.0, poll_s = 2.0, give_up_s = 600;
@@ -71,6 +71,8 @@ int main(int argc, char** argv) {
       ->required()
       ->check(CLI::ExistingFile);
   app.add_option("--samples", samples_path, "specimen catalogue")->check(CLI::ExistingFile);
+  app.add_option("--plans", plans_dir, "the instrument's plans (*.toml), offered by the console")
+      ->check(CLI::ExistingDirectory);
   app.add_option("--db", db_path, "SQLite database (created if missing)")->required();
   app.add_option("--listen", host, "API address, numeric IPv4 (loopback unless you mean otherwise)")
       ->check(CLI::ValidIPV4)
@@ -154,6 +156,7 @@ int main(int argc, char** argv) {
   ao.port = port;
   ao.token = *token;
   ao.db_path = db_path;
+  ao.plans_dir = plans_dir;
   auto api = daemon::ApiServer::Start(controller, ao);
   if (!api.ok()) {
     controller.Shutdown();

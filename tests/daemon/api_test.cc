@@ -14,6 +14,7 @@
 #include <chrono>
 #include <ctime>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -366,6 +367,67 @@ TEST_F(DaemonApi, ARectanglesCoverageIsItsSizeAtTheSampleAndTheSpreadItImplies) 
     EXPECT_EQ(status, 400) << query;
     EXPECT_NE(body.dump().find(names), std::string::npos) << query << ": " << body.dump();
   }
+}
+
+// The instrument's plans (goniod --plans): listed with their check against the instrument, read
+// by name; without --plans the list is empty and says so.
+TEST_F(DaemonApi, TheInstrumentsPlansAreListedCheckedAndReadByNameOnly) {
+  auto [none, none_body] = Get("/api/v1/plans");
+  EXPECT_EQ(none, 200);
+  EXPECT_EQ(none_body["configured"], false);
+  EXPECT_EQ(Get("/api/v1/plans/quick.toml").first, 404);
+
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gonio_api_plans_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir / "quick.toml") << "# Ten quick points\n" << kPlan;
+  std::ofstream(dir / "wrong.toml")
+      << "sample = \"ground-glass-G1\"\n[geometry]\nincidence_deg = [0]\n";
+  auto api = ApiServer::Start(*controller, {.host = "127.0.0.1",
+                                            .port = 0,
+                                            .token = kToken,
+                                            .db_path = db_path,
+                                            .plans_dir = dir.string()});
+  ASSERT_TRUE(api.ok()) << api.error().message;
+  httplib::Client with("127.0.0.1", (*api)->port());
+  auto list = with.Get("/api/v1/plans");
+  ASSERT_TRUE(list);
+  const json l = json::parse(list->body);
+  EXPECT_EQ(l["configured"], true);
+  ASSERT_EQ(l["plans"].size(), 2u) << l.dump();
+  EXPECT_EQ(l["plans"][0]["name"], "quick.toml");
+  EXPECT_EQ(l["plans"][0]["valid"], true) << l.dump();
+  EXPECT_EQ(l["plans"][0]["description"], "Ten quick points");
+  EXPECT_EQ(l["plans"][1]["valid"], false);
+  EXPECT_NE(l["plans"][1]["error"].get<std::string>().find("wrong.toml:"), std::string::npos)
+      << l.dump();
+  auto read = with.Get("/api/v1/plans/quick.toml");
+  ASSERT_TRUE(read);
+  EXPECT_EQ(read->status, 200);
+  EXPECT_NE(json::parse(read->body)["text"].get<std::string>().find("incidence_deg = [0, 30]"),
+            std::string::npos);
+  // A name with a slash is no plan's route at all (the path is decoded before it is matched).
+  auto escape = with.Get("/api/v1/plans/..%2f..%2fetc%2fpasswd");
+  ASSERT_TRUE(escape);
+  EXPECT_EQ(escape->status, 404);
+  EXPECT_EQ(escape->body.find("root:"), std::string::npos);
+  for (const char* bad :
+       {"/api/v1/plans/a%20b.toml", "/api/v1/plans/.hidden.toml", "/api/v1/plans/..toml"}) {
+    auto r = with.Get(bad);
+    ASSERT_TRUE(r) << bad;
+    EXPECT_EQ(r->status, 400) << bad << ": " << r->body;
+  }
+  EXPECT_EQ(with.Get("/api/v1/plans/none.toml")->status, 404);
+  (*api)->Stop();
+  std::filesystem::remove_all(dir);
+  // A --plans that is not a directory stops the start, naming it.
+  auto bad = ApiServer::Start(*controller, {.host = "127.0.0.1",
+                                            .port = 0,
+                                            .token = kToken,
+                                            .db_path = db_path,
+                                            .plans_dir = dir.string()});
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find(dir.string()), std::string::npos);
 }
 
 TEST_F(DaemonApi, JobsRunInQueueOrderAndQueuedOnesCanBeMovedOrCancelled) {

@@ -10,6 +10,9 @@ What it checks, as an operator would see it:
   - the camera view: a snap between runs shows a frame (not blank); a rectangle dragged on it is
     described in mm with its spread of directions, and put into the plan's text; the run then
     measures through it (its frames show it);
+  - the instrument's plans (goniod --plans) are offered, and one chosen fills the plan's text; a
+    schedule whose plan is one of them is dry-run from the page (each entry, its points, its
+    time), queuing nothing;
   - a plan's dry run shows its points and time, and queues nothing; submitted, its points appear
     in the lobe plot as they are stored, with the temperature, exposure and monitor plots beside;
   - pause stops the run after its point (no new points while paused), resume continues it, and
@@ -18,7 +21,7 @@ What it checks, as an operator would see it:
 It saves screenshots (the README's is one of them) and prints what the page measured of itself:
 time to first paint and, per new point, ms from the point's event to the point drawn.
 
-Usage: console_test.py URL TOKEN PLAN OUTDIR
+Usage: console_test.py URL TOKEN PLAN OUTDIR SCHEDULE
 """
 import json
 import statistics
@@ -32,7 +35,7 @@ from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 
-url, token, plan, outdir = sys.argv[1:5]
+url, token, plan, outdir, schedule = sys.argv[1:6]
 failures = []
 
 
@@ -133,9 +136,31 @@ try:
     check(token not in driver.page_source and token not in driver.current_url,
           "the token is nowhere on the page or in its URL")
 
+    # The instrument's plans: the catalogue's plan fills the text box.
+    from selenium.webdriver.support.ui import Select
+    catalogue = Select(driver.find_element(By.ID, "plan-catalogue"))
+    names = [o.text for o in catalogue.options]
+    check(any(n.startswith("console_plan.toml - The console test's plan") for n in names),
+          f"the instrument's plans are offered with their descriptions ({names})")
+    driver.find_element(By.ID, "plan-text").clear()
+    catalogue.select_by_value("console_plan.toml")
+    wait_for(lambda: driver.find_element(By.ID, "plan-text").get_attribute("value")
+             .startswith("# The console test's plan"), "a catalogue plan fills the plan's text")
+
+    # A schedule naming that plan, dry-run from the page: its entry, its points, nothing queued.
+    driver.find_element(By.ID, "schedule-file").send_keys(schedule)
+    driver.find_element(By.ID, "schedule-dry-run").click()
+    sched = wait_for(lambda: "in all" in text("schedule-result") and text("schedule-result"),
+                     "the schedule's dry run shows its entries")
+    print("schedule dry run:", sched.replace("\n", " | "))
+    check("console_plan.toml (line 1) × 2: 14 points" in sched and "fits beckmann" in sched,
+          f"the dry run names the entry, its repeats, points and fit: {sched!r}")
+    check(not driver.find_elements(By.CSS_SELECTOR, "#jobs tr[data-state='queued']"),
+          "a schedule's dry run queues nothing")
+
     # The camera view: a snap between runs, then a rectangle dragged about the sample's centre.
-    check(driver.find_element(By.ID, "plan-text").get_attribute("value").startswith("sample"),
-          "the chosen plan file is shown in the plan's text box")
+    check('sample = "ground-glass-G1"' in driver.find_element(By.ID, "plan-text")
+          .get_attribute("value"), "the chosen plan is shown in the plan's text box")
     driver.find_element(By.ID, "snap-exposure").clear()
     driver.find_element(By.ID, "snap-exposure").send_keys("0.1")
     driver.find_element(By.ID, "snap").click()

@@ -35,15 +35,26 @@ y = 246
 width = 6
 height = 19
 PLAN
+# The instrument's plans (goniod --plans): the same plan, and a schedule that names it without
+# carrying it (the page takes it from there).
+mkdir -p "$work/plans"
+{ echo "# The console test's plan: two incidences, 14 points"; cat "$work/console_plan.toml"; } \
+  > "$work/plans/console_plan.toml"
+cat > "$work/console_schedule.toml" <<'SCHEDULE'
+[[job]]
+plan = "console_plan.toml"
+repeat = 2
+fit = ["beckmann"]
+SCHEDULE
 db="$work/runs.sqlite"
 "$goniod" -c "$work/instrument.toml" --samples "$src/config/samples.toml" --db "$db" \
-  --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
+  --plans "$work/plans" --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
 daemon=$!
 for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
 [[ -s "$work/apiport" ]] || fail "goniod did not start"
 url="http://127.0.0.1:$(cat "$work/apiport")"
 /usr/bin/python3 "$src/tests/daemon/console_test.py" "$url" "$(cat "$db.token")" \
-  "$work/console_plan.toml" "$work" || fail "console_test.py"
+  "$work/console_plan.toml" "$work" "$work/console_schedule.toml" || fail "console_test.py"
 kill -TERM "$daemon"
 wait "$daemon" || fail "goniod did not exit cleanly"
 daemon=""

@@ -10,20 +10,14 @@ Usage: scripts/console_screenshot.py URL OUT.png [MIN_POINTS]
 import sys
 import time
 
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
+from headless_chromium import headless_chromium
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 
 url, out = sys.argv[1:3]
 min_points = int(sys.argv[3]) if len(sys.argv) > 3 else 20
 
-opts = webdriver.ChromeOptions()
-opts.binary_location = "/usr/bin/chromium"
-for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-          "--window-size=1500,1000", "--no-first-run", "--disable-extensions"):
-    opts.add_argument(a)
-driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=opts)
+driver = headless_chromium(1500, 1000)
 try:
     driver.get(url)
     end = time.monotonic() + 900

@@ -18,20 +18,22 @@ What it checks, as an operator would see it:
   - pause stops the run after its point (no new points while paused), resume continues it, and
     the run finishes with every point drawn; abort asks first, "keep running" keeps it running;
   - a past run opens with its events, and its CSV link gives the run's CSV.
-It saves screenshots (the README's is one of them) and prints what the page measured of itself:
-time to first paint and, per new point, ms from the point's event to the point drawn.
+It saves screenshots (the README's comes from scripts/console_screenshot.py) and prints what the
+page measured of itself: time to first paint and, per new point, ms from the point's event to the
+point drawn.
 
 Usage: console_test.py URL TOKEN PLAN OUTDIR SCHEDULE
 """
 import json
+import os
 import statistics
 import sys
 import time
 import urllib.error
 import urllib.request
 
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts"))
+from headless_chromium import headless_chromium  # noqa: E402
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 
@@ -105,13 +107,7 @@ check(code == 404 and "no file" in body, f"an unknown console file is a 404 (got
 code, body, _ = http("POST", "/api/v1/pause", {})
 check(code == 401, f"a mutation without the token from a plain client is refused (got {code})")
 
-opts = webdriver.ChromeOptions()
-opts.binary_location = "/usr/bin/chromium"
-for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-          "--window-size=1500,1100", "--no-first-run", "--disable-extensions"):
-    opts.add_argument(a)
-driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=opts)
-driver.set_page_load_timeout(30)
+driver = headless_chromium(1500, 1100)
 try:
     driver.get(url + "/")
     check(driver.current_url.endswith("/console/"), f"/ leads to the console ({driver.current_url})")

@@ -384,11 +384,12 @@ Result<std::shared_ptr<const FrameView>> Controller::Snap(double exposure_s) {
     return camera_.Snap();
   };
   auto f = snap();
+  std::shared_ptr<const FrameView> kept;
   if (f.ok()) {
     FrameView about;
     about.source = "snap";
     about.exposure_s = exposure_s;
-    frames_.Put(f->image, o_.engine.linear_limit_adu, std::move(about));
+    kept = frames_.Put(f->image, o_.engine.linear_limit_adu, std::move(about));
   }
   {
     std::lock_guard lock(mu_);
@@ -396,7 +397,7 @@ Result<std::shared_ptr<const FrameView>> Controller::Snap(double exposure_s) {
   }
   cv_.notify_all();
   if (!f.ok()) return f.error();
-  return frames_.Get();
+  return kept;
 }
 
 Status Controller::Pause() {

@@ -67,7 +67,8 @@ FrameView Downscale(const cv::Mat1w& image, int max_side, double linear_limit) {
   return v;
 }
 
-void LatestFrame::Put(const cv::Mat1w& image, double linear_limit, FrameView about) {
+std::shared_ptr<const FrameView> LatestFrame::Put(const cv::Mat1w& image, double linear_limit,
+                                                  FrameView about) {
   FrameView v = Downscale(image, max_side_, linear_limit);
   v.source = std::move(about.source);
   v.run = about.run;
@@ -78,6 +79,7 @@ void LatestFrame::Put(const cv::Mat1w& image, double linear_limit, FrameView abo
   std::lock_guard lock(mu_);
   v.seq = ++seq_;
   latest_ = std::make_shared<const FrameView>(std::move(v));
+  return latest_;
 }
 
 std::shared_ptr<const FrameView> LatestFrame::Get() const {

@@ -44,8 +44,10 @@ FrameView Downscale(const cv::Mat1w& image, int max_side, double linear_limit);
 class LatestFrame {
  public:
   explicit LatestFrame(int max_side = 512) : max_side_(max_side) {}
-  // Downscales and keeps `image` (the caller's buffer is not kept), numbering it.
-  void Put(const cv::Mat1w& image, double linear_limit, FrameView about);
+  // Downscales and keeps `image` (the caller's buffer is not kept), numbering it; returns it as
+  // kept (a later Put may already have replaced it for Get).
+  std::shared_ptr<const FrameView> Put(const cv::Mat1w& image, double linear_limit,
+                                       FrameView about);
   std::shared_ptr<const FrameView> Get() const;  // null before the first frame
 
  private:

@@ -67,8 +67,9 @@ TEST(FrameView, ASmallFrameIsKeptWholeAndEachPutIsANewFrame) {
   point.source = "run";
   point.run = 3;
   point.point = 12;
-  latest.Put(image, 65535, point);
+  const auto put = latest.Put(image, 65535, point);
   auto second = latest.Get();
+  EXPECT_EQ(put, second);  // what Put returns is what it kept
   EXPECT_GT(second->seq, first->seq);
   EXPECT_EQ(second->pixels[0], 9);
   EXPECT_EQ(first->pixels[0], 7);  // a reader's copy is not changed under it

@@ -29,13 +29,11 @@ width = 6
 height = 19
 PLAN
 one_stop() {  # $1: "gone" kills gonio-sim before the signal
-  rm -f "$work"/runs.sqlite* "$work/apiport" "$work/port" "$work/mport"
+  rm -f "$work"/runs.sqlite* "$work/goniod.log" "$work/port" "$work/mport"
   start_gonio_sim "$build/sim/gonio-sim" 5 "$work" "$src"
-  "$build/daemon/goniod" -c "$work/instrument.toml" --samples "$src/config/samples.toml" \
-    --db "$work/runs.sqlite" --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
-  daemon=$!
-  for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
-  "$build/daemon/gonioctl" --url "http://127.0.0.1:$(cat "$work/apiport")" \
+  start_goniod "$build/daemon/goniod" "$work" "$src" "$work/runs.sqlite" ||
+    { echo "goniod did not start:" >&2; cat "$work/goniod.log" >&2; exit 1; }
+  "$build/daemon/gonioctl" --url "$url" \
     --token-file "$work/runs.sqlite.token" submit "$work/plan.toml" > /dev/null
   for _ in $(seq 600); do
     [[ $(sqlite3 "$work/runs.sqlite" "select count(*) from measurements" 2>/dev/null || echo 0) -ge 2 ]] && break

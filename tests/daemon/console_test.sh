@@ -47,12 +47,7 @@ repeat = 2
 fit = ["beckmann"]
 SCHEDULE
 db="$work/runs.sqlite"
-"$goniod" -c "$work/instrument.toml" --samples "$src/config/samples.toml" --db "$db" \
-  --plans "$work/plans" --port 0 --port-file "$work/apiport" > "$work/goniod.log" 2>&1 &
-daemon=$!
-for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
-[[ -s "$work/apiport" ]] || fail "goniod did not start"
-url="http://127.0.0.1:$(cat "$work/apiport")"
+start_goniod "$goniod" "$work" "$src" "$db" --plans "$work/plans" || fail "goniod did not start"
 /usr/bin/python3 "$src/tests/daemon/console_test.py" "$url" "$(cat "$db.token")" \
   "$work/console_plan.toml" "$work" "$work/console_schedule.toml" || fail "console_test.py"
 kill -TERM "$daemon"

@@ -42,15 +42,7 @@ width = 6
 height = 19
 PLAN
 db="$work/runs.sqlite"
-start_daemon() {
-  rm -f "$work/apiport"
-  "$goniod" -c "$work/instrument.toml" --samples "$src/config/samples.toml" --db "$db" \
-    --port 0 --port-file "$work/apiport" >> "$work/goniod.log" 2>&1 &
-  daemon=$!
-  for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
-  [[ -s "$work/apiport" ]] || fail "goniod did not start"
-  url="http://127.0.0.1:$(cat "$work/apiport")"
-}
+start_daemon() { start_goniod "$goniod" "$work" "$src" "$db" || fail "goniod did not start"; }
 ctl() { "$ctl" --url "$url" --token-file "$db.token" "$@"; }
 q() { sqlite3 "$db" "$1"; }
 # wait_points RUN N: waits (30 s at most) until run RUN has N measurements; fails otherwise.

@@ -38,3 +38,19 @@ restart_gonio_sim() {
     sleep 0.05
   done
 }
+
+# start_goniod GONIOD WORK SRC DB [goniod options...]: starts goniod on WORK/instrument.toml
+# (written by start_gonio_sim) with the example specimens, the database DB and a free API port,
+# its output appended to WORK/goniod.log. Waits until it listens; sets daemon (its pid) and url.
+# Returns 1 when it does not start within 15 s.
+start_goniod() {
+  local goniod=$1 work=$2 src=$3 db=$4
+  shift 4
+  rm -f "$work/apiport"
+  "$goniod" -c "$work/instrument.toml" --samples "$src/config/samples.toml" --db "$db" "$@" \
+    --port 0 --port-file "$work/apiport" >> "$work/goniod.log" 2>&1 &
+  daemon=$!
+  for _ in $(seq 300); do [[ -s "$work/apiport" ]] && break; sleep 0.05; done
+  [[ -s "$work/apiport" ]] || return 1
+  url="http://127.0.0.1:$(cat "$work/apiport")"
+}

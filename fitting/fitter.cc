@@ -498,8 +498,10 @@ std::optional<double> EstimateAlphaFromHalfWidth(std::span<const Sample> samples
       half_angle = std::min(half_angle, std::acos(std::clamp(Dot(s.view, peak->view), -1.0, 1.0)));
   if (!std::isfinite(half_angle) || half_angle <= 0) return std::nullopt;
   // Near normal incidence a facet tilted by theta_h deflects the refracted ray by about
-  // theta_h (1 - 1/eta); Beckmann's D falls to half at tan(theta_h) = alpha sqrt(ln 2).
-  const double theta_h = std::min(half_angle / (1 - 1 / eta), 80 * kDeg);
+  // theta_h (1 - 1/eta), and the reflected one by 2 theta_h; Beckmann's D falls to half at
+  // tan(theta_h) = alpha sqrt(ln 2).
+  const double deflection = IsReflection(*peak) ? 2 : 1 - 1 / eta;
+  const double theta_h = std::min(half_angle / deflection, 80 * kDeg);
   return std::tan(theta_h) / std::sqrt(std::log(2.0));
 }
 
@@ -697,7 +699,7 @@ Result<FitSummary> FitOnce(std::span<const Sample> samples, const FitOptions& o)
   if (starts.empty())
     return Error{ErrorCode::kNumerical,
                  "the model is zero at every sample for every width tried: are the light and "
-                 "view directions a transmission geometry the model can reach?"};
+                 "view directions a geometry (transmission or reflection) the model can reach?"};
 
   // The samples' models, decided at the best start; every set stays alive while a problem that
   // was built on it may be the winner's.
@@ -785,6 +787,10 @@ Result<FitSummary> FitOnce(std::span<const Sample> samples, const FitOptions& o)
 Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   if (Status s = o.Validate(); !s) return s.error();
   if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
+  if (IsReflection(samples[0]) && !HasBrdf(o.model.family))
+    return InvalidArgument(std::string(Name(o.model.family)) +
+                           " is a transmission model (Sun 2008 gives no BRDF): it cannot fit "
+                           "reflection samples; fit beckmann, ggx or phong");
   if (o.floor != Floor::kAuto) return FitOnce(samples, o);
   // The floor only when the data need it: BIC with it lower by more than 2.
   FitOptions off = o, on = o;
@@ -903,18 +909,12 @@ std::vector<EmpiricalDPoint> EmpiricalD(std::span<const Sample> samples, double 
     const Vec3<double>& v = s.view;
     if (optics::AbsCosTheta(l) <= 0.5 || optics::AbsCosTheta(v) <= 0.5) continue;
     if (s.value < min_relative * max_value || s.value < min_snr * s.sigma) continue;
-    const double eta_i = 1, eta_o = eta;  // light in air, view in glass
-    const auto h = optics::HalfVectorTransmission(l, eta_i, v, eta_o);
-    if (!h || Dot(l, *h) <= 0 || Dot(v, *h) >= 0) continue;
-    const double ldoth = Dot(l, *h), vdoth = Dot(v, *h);
-    const double denom = eta_i * ldoth + eta_o * vdoth;
-    const double F = optics::FresnelDielectric(ldoth, eta_o / eta_i);
-    // eq. 21 with G = 1, solved for D; S = k f_t |cos theta_l|.
-    const double to_d = optics::AbsCosTheta(l) * optics::AbsCosTheta(v) * denom * denom /
-                        (std::abs(ldoth) * std::abs(vdoth) * eta_o * eta_o * (1 - F)) /
-                        (scale * optics::AbsCosTheta(l));
+    // eq. 21 (or 20 for reflection) with G = 1, solved for D; S = k f |cos theta_l|.
+    const FixedGeometry g = PrecomputeGeometry(l, v, eta);
+    if (!(g.factor > 0)) continue;
+    const double to_d = 1 / (scale * g.factor);
     EmpiricalDPoint p;
-    p.theta_h_deg = std::acos(std::clamp(h->z, -1.0, 1.0)) / kDeg;
+    p.theta_h_deg = std::acos(std::clamp(g.h.z, -1.0, 1.0)) / kDeg;
     p.d = s.value * to_d;
     p.d_sigma = s.sigma * to_d;
     out.push_back(p);

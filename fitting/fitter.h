@@ -181,8 +181,8 @@ std::vector<PredictionError> PredictIncidences(const FitSummary& fit,
 // ---- Empirical D (Walter section 6, bottom plots of Figures 10, 11, 13, 14) ------------------
 
 struct EmpiricalDPoint {
-  double theta_h_deg = 0;  // angle of the half vector h_t from the normal
-  double d = 0;            // eq. 21 solved for D with G = 1 and the fitted scale
+  double theta_h_deg = 0;  // angle of the half vector (h_t, or h_r for reflection) from the normal
+  double d = 0;            // eq. 21 (20) solved for D with G = 1 and the fitted scale
   double d_sigma = 0;
 };
 

@@ -67,6 +67,16 @@ FixedGeometry PrecomputeGeometry(const optics::Vec3<double>& l, const optics::Ve
   FixedGeometry g;
   g.l = l;
   g.v = v;
+  if (CosTheta(l) > 0 && CosTheta(v) > 0) {  // reflection, eq. 20
+    const auto h = HalfVectorReflection(l, v);
+    if (!h) return g;
+    g.h = *h;
+    const double ldoth = Dot(l, *h), vdoth = Dot(v, *h);
+    if (!(ldoth > 0) || !(vdoth > 0)) return g;  // G1's chi+ (eq. 26, 34)
+    g.factor =
+        FresnelDielectric(ldoth, eta) / (4 * AbsCosTheta(l) * AbsCosTheta(v)) * AbsCosTheta(l);
+    return g;
+  }
   if (!(CosTheta(l) * CosTheta(v) < 0) || eta == 1) return g;
   const double eta_i = CosTheta(l) > 0 ? 1 : eta, eta_o = CosTheta(v) > 0 ? 1 : eta;
   const auto h = HalfVectorTransmission(l, eta_i, v, eta_o);
@@ -82,6 +92,8 @@ FixedGeometry PrecomputeGeometry(const optics::Vec3<double>& l, const optics::Ve
              (AbsCosTheta(l) * AbsCosTheta(v) * denom * denom) * AbsCosTheta(l);
   return g;
 }
+
+bool HasBrdf(Family f) { return f != Family::kSun2008; }
 
 std::string Describe(const ModelSpec& m) {
   std::string s = Name(m.family);

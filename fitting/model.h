@@ -41,6 +41,10 @@ struct ModelSpec {
 
 std::string Describe(const ModelSpec& m);
 
+// Whether a model family has a reflection (BRDF) form here: Walter's microfacet families do (eq.
+// 20); Sun 2008 is a transmission model only, and the fitter refuses it for reflection samples.
+bool HasBrdf(Family f);
+
 // The transmitted radiance BTDF f(l, v) of the family (microfacet.h conventions: l = light,
 // v = view, eta = index below / above), for any scalar T (double or ceres::Jet).
 template <typename T>
@@ -61,15 +65,37 @@ T ModelBtdf(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>&
   return T(0);
 }
 
+// The BRDF of the family, eq. 20: F(l, h_r) G(l, v, h_r) D(h_r) / (4 |l.n| |v.n|), l and v both
+// on the air side. Zero for Sun 2008 (HasBrdf).
+template <typename T>
+T ModelBrdf(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>& v, const T& width,
+            const T& eta) {
+  using namespace optics;
+  switch (m.family) {
+    case Family::kBeckmann:
+      return RoughDielectricBsdf<BeckmannDistribution<T>>(BeckmannDistribution<T>(width, m.g1), eta)
+          .Brdf(l, v);
+    case Family::kGgx:
+      return RoughDielectricBsdf<GgxDistribution<T>>(GgxDistribution<T>(width), eta).Brdf(l, v);
+    case Family::kPhong:
+      return RoughDielectricBsdf<PhongDistribution<T>>(PhongDistribution<T>(width), eta).Brdf(l, v);
+    case Family::kSun2008:
+      return T(0);
+  }
+  return T(0);
+}
+
 // ---- The same model split for a fixed eta (the fitter's fast path) ---------------------------
 // With eta fixed, everything in eq. 21 except D and the shadowing depends on the geometry only:
 //   S = k * factor(l, v; eta) * D(h; width) * Shadowing(l, v, h; width)
 // with factor = |l.h| |v.h| eta_o^2 (1 - F) |cos theta_l| / (|l.n| |v.n| (eta_i l.h + eta_o
 // v.h)^2), Shadowing = G1(l, h) G1(v, h) (Walter) or V(0, theta_l) V(0, theta_v) (Sun 2008; its chi
-// of eq. A.14 is the same Jacobian, docs/optics.md). The fitter computes factor once per sample and
-// differentiates only D * Shadowing. tests/fitting/model_test.cc checks it equals MeasurementModel.
+// of eq. A.14 is the same Jacobian, docs/optics.md). For a reflection pair (v on the air side) h
+// is h_r and factor = F(l.h_r) |cos theta_l| / (4 |l.n| |v.n|) (eq. 20). The fitter computes
+// factor once per sample and differentiates only D * Shadowing. tests/fitting/model_test.cc checks
+// it equals MeasurementModel.
 struct FixedGeometry {
-  optics::Vec3<double> l, v, h;  // h = h_t (upper hemisphere)
+  optics::Vec3<double> l, v, h;  // h = h_t or h_r (upper hemisphere)
   double factor = 0;             // 0 where no facet refracts l into v
 };
 
@@ -125,11 +151,14 @@ T DTimesShadowing(const ModelSpec& m, const FixedGeometry& g, const T& width) {
   return ShadowingLight(m, g.l, width) * DTimesShadowingView(m, g, width);
 }
 
-// S = k f(l, v) |cos theta_l|.
+// S = k f(l, v) |cos theta_l|: f the BTDF for a view on the glass side (v.z < 0), the BRDF for one
+// on the air side (a reflection sample).
 template <typename T>
 T MeasurementModel(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>& v,
                    const T& width, const T& k, const T& eta) {
-  return k * ModelBtdf(m, l, v, width, eta) * optics::AbsCosTheta(l);
+  const T f =
+      optics::CosTheta(v) > T(0) ? ModelBrdf(m, l, v, width, eta) : ModelBtdf(m, l, v, width, eta);
+  return k * f * optics::AbsCosTheta(l);
 }
 
 }  // namespace gonio::fitting

@@ -72,6 +72,28 @@ std::optional<Traced> TraceOne(const ResponseSetup& s, const V& source_dir, cons
                 transmitted * inv_square};
 }
 
+// One ray of a camera on the air side (reflection): from the pinhole through the object-plane
+// point (x, y) mm straight to the rough face z = 0, with no lens or glass in the path. Its weight
+// is the source's inverse square only: the same k then serves the point model and the response
+// (the transmission side's k differs by the lens's exit, eta^2 / T_pole).
+std::optional<Traced> TraceReflected(const ResponseSetup& s, const V& source_dir,
+                                     const V& camera_dir, double phi, double x_mm, double y_mm) {
+  const BenchOptics& b = s.bench;
+  const V origin{0, 0, -(s.thickness_mm - b.centred_thickness_mm)};
+  const V across{camera_dir.z, 0, -camera_dir.x};
+  const V up{0, 1, 0};
+  const V pinhole = origin + camera_dir * b.camera_distance_mm;
+  const V d = Normalize(origin + across * x_mm + up * y_mm - pinhole);
+  if (!(d.z < 0)) return std::nullopt;  // the ray never comes down to the face
+  const V hit = pinhole + d * (-pinhole.z / d.z);
+  if (std::abs(hit.x) > b.plate_half_width_mm || std::abs(hit.y) > b.plate_half_width_mm)
+    return std::nullopt;
+  const V source = origin + source_dir * b.source_distance_mm;
+  const double dist = Length(source - hit);
+  return Traced{TurnByMinus((source - hit) / dist, phi), TurnByMinus(-d, phi),
+                optics::Sqr(b.source_distance_mm / dist)};
+}
+
 // An orthonormal pair perpendicular to the unit vector w.
 void Basis(const V& w, V* a, V* b) {
   const V t = std::abs(w.x) < 0.9 ? V{1, 0, 0} : V{0, 1, 0};
@@ -226,10 +248,13 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
     return InvalidArgument("the stage position is not finite");
   const double s = at.sample_deg * kDeg, phi = at.azimuth_deg * kDeg;
   const V source_dir = InPlane(s), camera_dir = InPlane(s - at.arm_deg * kDeg);
-  if (!(camera_dir.z < 0))
-    return InvalidArgument("the camera is not on the glass side at sample " +
+  // The camera on the glass side looks through the lens (transmission); on the air side it
+  // looks at the rough face (reflection).
+  const bool reflection = camera_dir.z > 0;
+  if (std::abs(camera_dir.z) < 1e-9)
+    return InvalidArgument("the camera lies in the sample's plane at sample " +
                            std::to_string(at.sample_deg) + " deg, arm " +
-                           std::to_string(at.arm_deg) + " deg: no transmission response");
+                           std::to_string(at.arm_deg) + " deg: it sees neither face");
   const SensorRectangle& r = setup.rectangle;
   const BenchOptics& b = setup.bench;
   // The rectangle in sensor pixels.
@@ -252,7 +277,8 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
       // The block's centre in pixel-centre coordinates: (first + last + 1) / 2.
       const double x = (0.5 * (col + col_end) - b.sensor_width / 2.0) * b.mm_per_pixel;
       const double y = (0.5 * (row + row_end) - b.sensor_height / 2.0) * b.mm_per_pixel;
-      const auto t = TraceOne(setup, source_dir, camera_dir, phi, x, y);
+      const auto t = reflection ? TraceReflected(setup, source_dir, camera_dir, phi, x, y)
+                                : TraceOne(setup, source_dir, camera_dir, phi, x, y);
       if (!t || t->l.z <= 0) continue;
       const double count = double(col_end - col) * (row_end - row);
       out.rays.push_back({t->l, t->v, t->weight * count});
@@ -260,7 +286,8 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
   }
   if (out.rays.empty())
     return Error{ErrorCode::kFailedPrecondition,
-                 "no pixel of the rectangle sees the sample through the lens at sample " +
+                 std::string("no pixel of the rectangle sees the sample ") +
+                     (reflection ? "" : "through the lens ") + "at sample " +
                      std::to_string(at.sample_deg) + " deg, arm " + std::to_string(at.arm_deg) +
                      " deg"};
   return out;

@@ -8,7 +8,9 @@
 // light direction from the hit point to the source. w_j is the Fresnel transmittance at the
 // sphere relative to the pole's times the source's inverse square relative to its distance from
 // the sphere centre; a pixel whose ray misses the lens or the plate has w_j = 0 (it sees only
-// stray light, which a floor term or a measured background accounts for).
+// stray light, which a floor term or a measured background accounts for). A camera on the light
+// side (reflection plans) sees the rough face directly: its rays go straight from the pinhole to
+// z = 0, w_j the inverse square alone, and f is the BRDF (eq. 20).
 //
 // The finite source and lens apertures widen each pair into two small cones (the source's around
 // l, the lens's around v). Averaging over them matters for narrow lobes only, so it is a separate
@@ -79,7 +81,7 @@ struct StagePosition {
 };
 
 struct ResponseRay {
-  optics::Vec3<double> l, v;  // sample frame: l toward the source, v toward the camera (glass)
+  optics::Vec3<double> l, v;  // sample frame: l toward the source, v toward the camera
   double weight = 0;          // w_j of (R1), > 0
 };
 
@@ -91,8 +93,10 @@ struct Response {
   bool apertures = false;  // whether the rays already carry the aperture cones
 };
 
-// The response of a transmission point (the camera on the glass side). Errors: an invalid setup,
-// a camera on the air side, or a rectangle none of whose pixels reaches the surface.
+// The response of a point: through the lens for a camera on the glass side (transmission), straight
+// to the rough face for one on the air side (reflection; each ray weighted by the source's inverse
+// square alone, so that w = 1 at the centre as it is in transmission). Errors: an invalid setup, a
+// camera in the sample's plane, or a rectangle none of whose pixels reaches the surface.
 // `max_rays` bounds the rays: a larger rectangle is traced at the centres of blocks of pixels,
 // each block's ray weighted by its pixel count (the signal is smooth on the scale of a block).
 Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition& at,

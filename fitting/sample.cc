@@ -21,12 +21,25 @@ Sample SampleFromBenchAngles(double theta_l_deg, double phi_l_deg, double theta_
   return s;
 }
 
+Sample SampleFromReflectionAngles(double theta_l_deg, double phi_l_deg, double theta_v_deg,
+                                  double phi_v_deg, double value, double sigma) {
+  // The view through the hemisphere at theta_v, turned to the air side: the mirror of l is
+  // (-l.x, -l.y, l.z), reached at theta_v = theta_l.
+  Sample s = SampleFromBenchAngles(theta_l_deg, phi_l_deg, theta_v_deg, phi_v_deg, value, sigma);
+  s.view = -s.view;
+  return s;
+}
+
 double ThetaLightDeg(const Sample& s) {
   const double t = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / kDeg;
   return s.light.x < 0 ? -t : t;
 }
 
 double ThetaViewDeg(const Sample& s) {
+  if (IsReflection(s)) {
+    const double t = std::acos(std::clamp(s.view.z, -1.0, 1.0)) / kDeg;
+    return s.view.x > 0 ? -t : t;
+  }
   const double t = std::acos(std::clamp(-s.view.z, -1.0, 1.0)) / kDeg;
   return s.view.x < 0 ? -t : t;
 }
@@ -81,7 +94,14 @@ Status ValidateSamples(std::span<const Sample> samples, int n_params, const std:
         return bad("direction is not unit length");
     }
     if (!(s.light.z > 0)) return bad("light direction must be on the air side (z > 0)");
-    if (!(s.view.z < 0)) return bad("view direction must be on the glass side (z < 0)");
+    if (!(s.view.z != 0))
+      return bad(
+          "view direction lies in the surface plane (z = 0): neither transmission nor "
+          "reflection");
+    if (IsReflection(s) != IsReflection(samples[0]))
+      return bad(std::string("a ") + (IsReflection(s) ? "reflection" : "transmission") +
+                 " sample among " + (IsReflection(samples[0]) ? "reflection" : "transmission") +
+                 " ones: fit each side on its own (their scales k differ by the lens's exit)");
     any_signal = any_signal || s.value > s.sigma;
   }
   if (!any_signal)

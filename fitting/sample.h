@@ -12,12 +12,17 @@
 
 namespace gonio::fitting {
 
-// A transmission sample: S(l, v) = k f_t(l, v) |cos theta_l| (docs/reference.md section 1).
+// A sample: S(l, v) = k f(l, v) |cos theta_l| (docs/reference.md section 1), with f the BTDF
+// (eq. 21) when the view is on the glass side (transmission, the bench's main use) and the BRDF
+// (eq. 20) when it is on the air side (reflection: the camera on the light side). One sample set
+// is one side: the two sides' k differ (the lens's exit on one, not the other).
 struct Sample {
   optics::Vec3<double> light;  // unit; z > 0 (air side), pointing from the sample to the source
-  optics::Vec3<double> view;   // unit; z < 0 (glass side), pointing from the sample to the camera
-  double value = 0;            // S in any consistent unit (e.g. dark-subtracted counts per second)
-  double sigma = 0;            // 1-sigma uncertainty of value, same unit, > 0
+  // unit, pointing from the sample to the camera; z < 0 (glass side) for transmission, z > 0
+  // (air side) for reflection
+  optics::Vec3<double> view;
+  double value = 0;  // S in any consistent unit (e.g. dark-subtracted counts per second)
+  double sigma = 0;  // 1-sigma uncertainty of value, same unit, > 0
   // The statistical part of sigma (shot, read and dark noise), when the bench's budget gives it
   // (acquisition: sigma_stat); 0 when unknown. The fitter splits each parameter's sigma by it.
   double sigma_stat = 0;
@@ -33,15 +38,22 @@ struct Sample {
 // theta_v = -theta_t (same azimuth convention), with theta_t the refraction angle.
 Sample SampleFromBenchAngles(double theta_l_deg, double phi_l_deg, double theta_v_deg,
                              double phi_v_deg, double value, double sigma);
+// A reflection sample from the bench's reflection angles (common/bench_angles.h): the view at
+// theta_v from +n, positive away from the light, so theta_v = theta_l is the mirror direction.
+Sample SampleFromReflectionAngles(double theta_l_deg, double phi_l_deg, double theta_v_deg,
+                                  double phi_v_deg, double value, double sigma);
+inline bool IsReflection(const Sample& s) { return s.view.z > 0; }
 // The bench angles of a sample's directions (degrees), the inverse of the above with phi = 0 or
-// 180 folded into a signed theta.
+// 180 folded into a signed theta (for a reflection sample, theta_v as the reflection angles
+// count it).
 double ThetaLightDeg(const Sample& s);
 double ThetaViewDeg(const Sample& s);
 
 // Checks what a fit needs: finite values, sigma > 0, values not more than 5 sigma below zero
 // (dark-subtracted noise may be slightly negative; more is a dark-subtraction error), unit
-// directions on the right sides, at least n_params + 1 samples, and some signal (some value above
-// its sigma). Errors name the first
+// directions on the right sides (the light on the air side, the view off the surface plane, every
+// view on one side), at least n_params + 1 samples, and some signal (some value above its
+// sigma). Errors name the first
 // offending sample and what is wrong with it: "<source>:12: ..." when the sample came from line
 // 12 of a file called source, "line 12: ..." without a source, "sample 11: ..." (0-based index)
 // when it has no line.

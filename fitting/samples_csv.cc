@@ -97,21 +97,20 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
       if (Status s = number(col, 0, out); !s) return s.error();
     if (Status s = number(kOptional[0], 0, &pl); !s) return s.error();
     if (Status s = number(kOptional[1], 0, &pv); !s) return s.error();
-    // An export marks each point's side; the models here are BTDFs, so a reflection sample
-    // (the camera on the light side) is refused rather than read as a transmitted one.
+    // An export marks each point's side: a reflection row's theta_v counts from +n (the camera on
+    // the light side, common/bench_angles.h) and it is fitted with the BRDF.
+    bool reflection = false;
     if (auto it = column.find("side"); it != column.end()) {
       const std::string_view side = fields[it->second];
-      if (side == "reflection")
-        return InvalidArgument(where() +
-                               "side 'reflection': the fitter fits transmission (BTDF) samples "
-                               "only; this run's camera was on the light side");
-      if (side != "transmission" && !side.empty())
+      reflection = side == "reflection";
+      if (side != "transmission" && side != "reflection" && !side.empty())
         return InvalidArgument(where() + "column 'side': '" + std::string(side) +
                                "' is not transmission or reflection");
     }
     if (!(std::abs(tl) < 90)) return InvalidArgument(where() + "theta_l_deg must lie in (-90, 90)");
     if (!(std::abs(tv) < 90)) return InvalidArgument(where() + "theta_v_deg must lie in (-90, 90)");
-    Sample s = SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);
+    Sample s = reflection ? SampleFromReflectionAngles(tl, pl, tv, pv, value, sigma)
+                          : SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);
     s.line = line_no;
     if (Status st = number("sigma_stat", 0, &s.sigma_stat); !st) return st.error();
     if (setup) {
@@ -144,14 +143,17 @@ Result<std::vector<Sample>> ReadSamplesCsv(const std::string& path) {
 Status WriteSamplesCsv(const std::string& path, std::span<const Sample> samples) {
   std::ofstream out(path);
   if (!out) return Error{ErrorCode::kIo, path + ": cannot open for writing"};
-  out << "theta_l_deg,phi_l_deg,theta_v_deg,phi_v_deg,value,sigma\n" << std::setprecision(17);
+  out << "theta_l_deg,phi_l_deg,theta_v_deg,phi_v_deg,value,sigma,side\n" << std::setprecision(17);
   constexpr double kDeg = optics::kPi / 180;
   for (const Sample& s : samples) {
     const double tl = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / kDeg;
     const double pl = std::atan2(s.light.y, s.light.x) / kDeg;
-    const double tv = std::acos(std::clamp(-s.view.z, -1.0, 1.0)) / kDeg;
-    const double pv = std::atan2(s.view.y, s.view.x) / kDeg;
-    out << tl << ',' << pl << ',' << tv << ',' << pv << ',' << s.value << ',' << s.sigma << '\n';
+    // A reflection view is the transmission view at the same angles turned to the air side.
+    const optics::Vec3<double> v = IsReflection(s) ? -s.view : s.view;
+    const double tv = std::acos(std::clamp(-v.z, -1.0, 1.0)) / kDeg;
+    const double pv = std::atan2(v.y, v.x) / kDeg;
+    out << tl << ',' << pl << ',' << tv << ',' << pv << ',' << s.value << ',' << s.sigma << ','
+        << (IsReflection(s) ? "reflection" : "transmission") << '\n';
   }
   if (!out) return Error{ErrorCode::kIo, path + ": write failed"};
   return OkStatus();

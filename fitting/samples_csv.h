@@ -3,8 +3,9 @@
 // Format: a header row naming the columns, in any order, then one sample per row.
 //   theta_l_deg, theta_v_deg, value, sigma   required (bench angles, sample.h)
 //   phi_l_deg, phi_v_deg                     optional, default 0
-//   side                                     optional: transmission (or empty); a reflection
-//                                            row is refused (the models are BTDFs)
+//   side                                     optional: transmission (or empty) or reflection
+//                                            (theta_v from +n, common/bench_angles.h; fitted
+//                                            with the BRDF, eq. 20)
 //   sample_read_deg, arm_read_deg,           with a "# response: {json}" line before the header
 //   azimuth_read_deg                         (an exported run of a bench with [bench]): each
 //                                            sample's stage position, so that it carries its

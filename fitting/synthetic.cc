@@ -10,15 +10,19 @@ std::vector<Sample> MakeSyntheticSweep(const SyntheticSweep& spec) {
   constexpr double kDeg = optics::kPi / 180;
   std::vector<Sample> out;
   for (double tl : spec.theta_l_deg) {
-    // Straight-through view angle for this incidence: Snell at the mean surface.
-    const double straight = -std::asin(std::sin(tl * kDeg) / spec.eta) / kDeg;
+    // Straight-through view angle for this incidence (Snell at the mean surface), or the mirror
+    // direction in reflection.
+    const double straight =
+        spec.reflection ? tl : -std::asin(std::sin(tl * kDeg) / spec.eta) / kDeg;
     std::vector<double> views;
     for (double tv = -spec.theta_v_max; tv <= spec.theta_v_max + 1e-9; tv += spec.theta_v_step)
       views.push_back(tv);
     if (spec.fine_step > 0)
       for (double d = -spec.fine_half_width; d <= spec.fine_half_width + 1e-9; d += spec.fine_step)
         if (std::abs(straight + d) < spec.theta_v_max) views.push_back(straight + d);
-    for (double tv : views) out.push_back(SampleFromBenchAngles(tl, 0, tv, 0, 0, 0));
+    for (double tv : views)
+      out.push_back(spec.reflection ? SampleFromReflectionAngles(tl, 0, tv, 0, 0, 0)
+                                    : SampleFromBenchAngles(tl, 0, tv, 0, 0, 0));
   }
   // Expected values, and the gain that puts the first sweep's peak at peak_electrons.
   double peak = 0;

@@ -1,6 +1,7 @@
 // Synthetic sweeps of a known model with realistic noise, for tests and benchmarks of the fitter.
 // This is not the instrument simulator (sim/, issue #4): no images, stages or cameras, just
-// S = k f_t |cos theta_l| at chosen geometries with photon shot noise and read noise.
+// S = k f |cos theta_l| at chosen geometries (f_t in transmission, f_r in reflection) with photon
+// shot noise and read noise.
 #pragma once
 
 #include <cstdint>
@@ -17,9 +18,11 @@ struct SyntheticSweep {
   double scale = 1.0;    // k
   double eta = 1.51;
   std::vector<double> theta_l_deg = {0.0};
+  // The camera on the light side (reflection samples, the BRDF) rather than through the glass.
+  bool reflection = false;
   // View angles: from -theta_v_max to +theta_v_max in steps of theta_v_step (degrees, bench
   // convention), plus a finer step inside +-fine_half_width around the straight-through
-  // direction when fine_step > 0 (narrow lobes).
+  // direction (the mirror direction in reflection) when fine_step > 0 (narrow lobes).
   double theta_v_max = 89.0;
   double theta_v_step = 1.0;
   double fine_step = 0.0;

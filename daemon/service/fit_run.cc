@@ -13,8 +13,9 @@ namespace gonio::daemon {
 namespace {
 
 // The run's measurements as the fitter's samples, each with its instrument response when the
-// run's bench geometry was stored. A stored setup that does not parse, or a reflection run, is an
-// error naming the run (nothing is stored or changed).
+// run's bench geometry was stored; a reflection run's (the camera on the light side) are fitted
+// with the BRDF. A stored setup that does not parse is an error naming the run (nothing is stored
+// or changed).
 Result<std::vector<fitting::Sample>> RunSamples(acquisition::Storage& db, std::int64_t run) {
   auto info = db.GetRun(run);
   if (!info.ok()) return Error{ErrorCode::kNotFound, info.error().message};
@@ -31,14 +32,10 @@ Result<std::vector<fitting::Sample>> RunSamples(acquisition::Storage& db, std::i
   }
   std::vector<fitting::Sample> samples;
   for (const auto& r : *rows) {
-    if (r.point.reflection)  // a plan has one side: the whole run is reflection
-      return Error{ErrorCode::kFailedPrecondition,
-                   "run " + std::to_string(run) +
-                       " measured reflection (the camera on the light side); the fitter fits "
-                       "transmission (BTDF) samples only"};
-    auto s =
-        fitting::SampleFromBenchAngles(r.point.theta_l_deg, r.point.phi_deg, r.point.theta_v_deg,
-                                       r.point.phi_deg, r.m.value, r.m.sigma);
+    const auto from_angles =
+        r.point.reflection ? fitting::SampleFromReflectionAngles : fitting::SampleFromBenchAngles;
+    auto s = from_angles(r.point.theta_l_deg, r.point.phi_deg, r.point.theta_v_deg, r.point.phi_deg,
+                         r.m.value, r.m.sigma);
     s.line = r.point.index;
     s.sigma_stat = r.m.sigma_stat;
     if (setup)

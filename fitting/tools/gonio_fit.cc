@@ -1,6 +1,7 @@
-// gonio-fit: fits microfacet models to a CSV of BTDF*cos samples and prints a table like Figure 12
-// of Walter 2007. With several incidences and a normal-incidence sweep among them it follows the
-// paper's protocol: fit at normal incidence, predict the other incidences, and fit all jointly.
+// gonio-fit: fits microfacet models to a CSV of BTDF*cos samples (BRDF*cos where the side column
+// says reflection) and prints a table like Figure 12 of Walter 2007. With several incidences and a
+// normal-incidence sweep among them it follows the paper's protocol: fit at normal incidence,
+// predict the other incidences, and fit all jointly.
 //
 //   gonio-fit samples.csv --model beckmann,ggx --out fit/
 //
@@ -152,7 +153,7 @@ Status WriteOutputs(const std::string& out_dir, const std::string& csv_path,
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos samples"};
+  CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos or BRDF*cos samples"};
   std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir, floor_arg = "auto";
   bool point_model = false;
   FitOptions base;

@@ -10,7 +10,7 @@
 
 int main(int argc, char** argv) {
   using namespace gonio::fitting;
-  CLI::App app{"Write a synthetic BTDF*cos sweep of a known model as CSV"};
+  CLI::App app{"Write a synthetic BTDF*cos (or BRDF*cos) sweep of a known model as CSV"};
   SyntheticSweep spec;
   std::string out, model = "beckmann";
   app.add_option("out", out, "CSV file to write")->required();
@@ -19,6 +19,10 @@ int main(int argc, char** argv) {
   app.add_option("--scale", spec.scale, "k")->capture_default_str();
   app.add_option("--eta", spec.eta)->capture_default_str();
   app.add_option("--incidences", spec.theta_l_deg, "theta_l in degrees")->delimiter(',');
+  std::string side = "transmission";
+  app.add_option("--side", side, "transmission or reflection (the camera on the light side)")
+      ->check(CLI::IsMember({"transmission", "reflection"}))
+      ->capture_default_str();
   app.add_option("--step", spec.theta_v_step, "view step (deg)")->capture_default_str();
   app.add_option("--fine-step", spec.fine_step, "finer view step near the peak (deg, 0: none)");
   app.add_option("--fine-half-width", spec.fine_half_width, "half width of the fine region (deg)");
@@ -36,7 +40,12 @@ int main(int argc, char** argv) {
     std::cerr << "gonio-synth: error: width, scale and step must be > 0 and eta > 1\n";
     return 2;
   }
+  if (side == "reflection" && !HasBrdf(*family)) {
+    std::cerr << "gonio-synth: error: --model " << model << " has no BRDF (transmission only)\n";
+    return 2;
+  }
   spec.model.family = *family;
+  spec.reflection = side == "reflection";
   const auto samples = MakeSyntheticSweep(spec);
   if (auto s = WriteSamplesCsv(out, samples); !s) {
     std::cerr << "gonio-synth: error: " << s.error().message << "\n";

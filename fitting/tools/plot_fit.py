@@ -71,7 +71,7 @@ def main():
                      label=m if i == 0 else None)
     top.set_yscale("log")
     top.set_ylim(peak * 1e-4, peak * 3)  # four decades, as Walter's Figures 10-11
-    top.set_xlabel("view angle theta_v (deg, from -n on the glass side)")
+    top.set_xlabel("view angle theta_v (deg; from -n through the glass, from +n in reflection)")
     top.set_ylabel("BTDF * cos theta_l")
     top.set_title("Measured and fitted (normal-incidence fit; other incidences predicted)")
     top.legend(fontsize=7, ncol=2)

@@ -179,6 +179,88 @@ TEST(ModelSelection, PicksTheGeneratingFamilyOnGroundGlass) {
   }
 }
 
+// ---- Reflection (eq. 20): the same machinery on the camera's light side ----------------------
+
+// Walter's reflection sweep: incidences 20, 40, 60 deg, the view every degree on the air side;
+// antiglare's lobe (about 2 alpha = 2.6 deg wide in theta_v, twice the facet tilt) adds a 0.05 deg
+// step within 4 deg of the mirror direction.
+SyntheticSweep ReflectionSweep(Family family, const Row& row, std::uint64_t seed) {
+  SyntheticSweep s = Sweep(family, row, seed);
+  s.reflection = true;
+  s.theta_l_deg = {20, 40, 60};
+  s.theta_v_max = 85;
+  if (row.beckmann_alpha < 0.05) s.fine_half_width = 4;
+  return s;
+}
+
+class ReflectionRecovery : public ::testing::TestWithParam<std::tuple<Family, int>> {};
+
+TEST_P(ReflectionRecovery, TheBrdfFitRecoversAlphaWithinTwoSigmaAboutNinetyFivePercentOfDraws) {
+  const auto [family, row_index] = GetParam();
+  const Row& row = kFigure12[row_index];
+  const double truth = family == Family::kGgx ? row.ggx_alpha : row.beckmann_alpha;
+  constexpr int kDraws = 200;
+  int covered = 0, converged = 0;
+  double mean_pull = 0, mean_chi2 = 0;
+  for (int d = 0; d < kDraws; ++d) {
+    const auto data = MakeSyntheticSweep(ReflectionSweep(family, row, 5000 + d));
+    ASSERT_TRUE(IsReflection(data.front()));
+    FitOptions o;
+    o.model.family = family;
+    const FitSummary f = MustFit(data, o);
+    if (f.status != FitStatus::kConverged) continue;
+    ++converged;
+    const double pull = (f.width.value - truth) / f.width.sigma;
+    mean_pull += pull / kDraws;
+    mean_chi2 += f.reduced_chi2 / kDraws;
+    covered += std::abs(pull) <= 2;
+  }
+  const double coverage = double(covered) / kDraws;
+  std::cout << "[ info ] reflection " << Name(family) << " " << row.sample << ": 2-sigma coverage "
+            << coverage * 100 << " % of " << kDraws << " draws, mean pull " << mean_pull
+            << ", mean chi2/dof " << mean_chi2 << "\n";
+  EXPECT_EQ(converged, kDraws);
+  // 95.4 % expected; the binomial sd over 200 draws is 1.5 %.
+  EXPECT_GE(coverage, 0.90);
+  EXPECT_LE(coverage, 0.995);
+  EXPECT_LT(std::abs(mean_pull), 0.3) << "biased";
+  EXPECT_NEAR(mean_chi2, 1.0, 0.05);
+}
+
+INSTANTIATE_TEST_SUITE_P(Figure12, ReflectionRecovery,
+                         ::testing::Combine(::testing::Values(Family::kBeckmann, Family::kGgx),
+                                            ::testing::Values(0, 3)),
+                         [](const auto& param_info) {
+                           return std::string(Name(std::get<0>(param_info.param))) + "_" +
+                                  kFigure12[std::get<1>(param_info.param)].sample;
+                         });
+
+TEST(ModelSelection, PicksTheGeneratingFamilyFromReflectionToo) {
+  for (Family truth : {Family::kBeckmann, Family::kGgx}) {
+    const auto fits = FitFamilies(MakeSyntheticSweep(ReflectionSweep(truth, kFigure12[0], 35)));
+    const ModelChoice c = SelectModel(fits);
+    ASSERT_TRUE(c.chosen.has_value()) << c.reason;
+    EXPECT_EQ(fits[*c.chosen].model.family, truth) << c.reason;
+  }
+}
+
+TEST(EmpiricalD, OfReflectionSamplesIsDAtTheMirrorFacet) {
+  // Noise-free Beckmann reflection: the empirical D (eq. 20 with G = 1 solved for D) is D(h_r)
+  // times G, so it lies within G's few per cent below D at theta_h.
+  SyntheticSweep s = ReflectionSweep(Family::kBeckmann, kFigure12[0], 36);
+  s.peak_electrons = 0;
+  const auto data = MakeSyntheticSweep(s);
+  const auto points = EmpiricalD(data, s.scale, s.eta);
+  ASSERT_GT(points.size(), 20u);
+  FitSummary truth;
+  truth.width.value = 0.344;
+  for (const auto& p : points) {
+    const double d = FittedD(truth, p.theta_h_deg);
+    EXPECT_LE(p.d, d * (1 + 1e-9)) << p.theta_h_deg;
+    EXPECT_GT(p.d, 0.85 * d) << p.theta_h_deg;
+  }
+}
+
 TEST(ModelSelection, RefusesToChooseWhenTheDataCannotTell) {
   // Antiglare sampled every degree: neither width is constrained, so neither family is chosen.
   SyntheticSweep s = Sweep(Family::kGgx, kFigure12[3], 32);
@@ -343,9 +425,19 @@ TEST(BadInput, ErrorsNameTheProblem) {
   auto bad_sigma = data;
   bad_sigma[0].sigma = 0;
   expect_error(bad_sigma, o, "sigma must be > 0");
-  auto reflection = data;
-  reflection[1].view.z = -reflection[1].view.z;
-  expect_error(reflection, o, "glass side");
+  // One view turned to the air side: a reflection sample among transmission ones.
+  auto mixed = data;
+  mixed[1].view.z = -mixed[1].view.z;
+  expect_error(mixed, o, "sample 1: a reflection sample among transmission ones");
+  auto in_plane = data;
+  in_plane[2].view = {1, 0, 0};
+  expect_error(in_plane, o, "sample 2: view direction lies in the surface plane");
+  SyntheticSweep r = Sweep(Family::kBeckmann, kFigure12[0], 62);
+  r.reflection = true;
+  r.theta_l_deg = {30};
+  FitOptions sun;
+  sun.model.family = Family::kSun2008;
+  expect_error(MakeSyntheticSweep(r), sun, "sun2008 is a transmission model");
   FitOptions bad_eta;
   bad_eta.eta = 0.9;
   expect_error(data, bad_eta, "eta must lie in (1, 3)");

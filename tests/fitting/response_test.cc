@@ -139,9 +139,49 @@ TEST(ResponseTest, AStoredSetupRoundTripsAndBadOnesAreNamed) {
   auto r = fitting::ResponseSetup::FromJson(outside.ToJson());
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().message.find("beyond the 512 x 512 sensor"), std::string::npos);
-  // A camera on the air side has no transmission response.
-  const StageTargets refl = StageTargetsForReflection(30, 30);
-  EXPECT_FALSE(fitting::ComputeResponse(setup, {refl.sample_deg, refl.arm_deg, 0}).ok());
+  // A camera in the sample's plane sees neither face.
+  auto edge_on = fitting::ComputeResponse(setup, {0, 90, 0});
+  ASSERT_FALSE(edge_on.ok());
+  EXPECT_NE(edge_on.error().message.find("sees neither face"), std::string::npos)
+      << edge_on.error().message;
+}
+
+// Reflection: the camera on the light side sees the rough face directly. The scene renders it on
+// its own path (Scene::TraceReflection) with the same k as transmission, which puts eta^2 / T_pole
+// on its reflection rate (docs/scene.md); the response leaves that to k (w = 1 at the centre), so
+// the test divides it out.
+TEST(ResponseTest, AReflectionRectangleMatchesTheScenesRenderingWithinATenthOfAPercent) {
+  const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
+  const double r0 = (1.51 - 1) / (1.51 + 1);
+  const double exit = 1.51 * 1.51 / (1 - r0 * r0);
+  struct Case {
+    double w, h, thickness, ti, tv;
+  };
+  const Case cases[] = {{3, 10, 6, 30, 30}, {10, 3, 6, 30, 45}, {3, 10, 3, 60, 50},
+                        {10, 3, 9, 60, 75}, {1, 3, 6, 20, 5},   {3, 10, 9, 40, -20}};
+  double largest_effect = 0;
+  for (const Case& c : cases) {
+    const auto setup = CentredSetup(c.w, c.h, c.thickness);
+    const StageTargets t = StageTargetsForReflection(c.ti, c.tv);
+    const fitting::StagePosition at{t.sample_deg, t.arm_deg, 0};
+    auto r = fitting::ComputeResponse(setup, at, /*max_rays=*/0);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    ASSERT_GT(r->v0.z, 0);
+    const double scene = SceneRectangle(*truth, setup, at) / exit;
+    double response = 0;
+    for (const auto& ray : r->rays) response += ray.weight * *truth->BrdfCos(ray.l, ray.v);
+    response /= r->pixels;
+    ASSERT_GT(scene, 0);
+    EXPECT_NEAR(response / scene, 1.0, 1e-3)
+        << c.w << "x" << c.h << " mm, " << c.thickness << " mm, ti " << c.ti << ", tv " << c.tv;
+    const double nominal = *truth->BrdfCos(r->l0, r->v0);
+    largest_effect = std::max(largest_effect, std::abs(scene / nominal - 1));
+    // The nominal pair is the plan's: theta_v from +n, away from the light.
+    const auto s = fitting::SampleFromReflectionAngles(c.ti, 0, c.tv, 0, 1, 1);
+    EXPECT_NEAR(optics::Dot(s.view, r->v0), 1.0, 1e-12);
+    EXPECT_NEAR(optics::Dot(s.light, r->l0), 1.0, 1e-12);
+  }
+  EXPECT_GT(largest_effect, 0.01);  // the rectangle matters in reflection as well
 }
 
 // Samples made with a 1 x 3 mm rectangle's response, with 0.2 % noise, at Walter's incidences.

@@ -6,6 +6,8 @@
 #include <cstdio>
 #include <filesystem>
 
+#include <unistd.h>
+
 #include "fitting/synthetic.h"
 
 namespace gonio::fitting {
@@ -41,15 +43,51 @@ TEST(SamplesCsv, MalformedFilesNameFileLineAndColumn) {
             "s.csv:2: has 3 fields, the header has 4");
   EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma\n95,1,2,1\n"),
             "s.csv:2: theta_l_deg must lie in (-90, 90)");
-  // An export's side column: transmission rows are read, a reflection row is refused.
-  EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma,side\n0,1,2,1,transmission\n"
-                    "0,30,2,1,reflection\n"),
-            "s.csv:3: side 'reflection': the fitter fits transmission (BTDF) samples only; this "
-            "run's camera was on the light side");
   EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma,side\n0,1,2,1,sideways\n"),
             "s.csv:2: column 'side': 'sideways' is not transmission or reflection");
   EXPECT_EQ(ErrorOf(""), "s.csv: empty file (no header row)");
   EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma\n"), "s.csv: no samples after the header");
+}
+
+TEST(SamplesCsv, AReflectionRowViewsFromTheAirSideAndRoundTrips) {
+  // theta_v from +n, positive away from the light: 30 deg at incidence 30 is the mirror direction.
+  auto r = ParseSamplesCsv(
+      "theta_l_deg,theta_v_deg,value,sigma,side\n30,30,2,1,reflection\n30,-20,2,1,reflection\n",
+      "s.csv");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Sample& mirror = (*r)[0];
+  EXPECT_TRUE(IsReflection(mirror));
+  EXPECT_NEAR(mirror.view.x, -mirror.light.x, 1e-12);
+  EXPECT_NEAR(mirror.view.z, mirror.light.z, 1e-12);
+  EXPECT_NEAR(ThetaViewDeg((*r)[1]), -20, 1e-9);
+  // Mixed sides in one file are read, and refused by the fit's validation naming the line.
+  auto mixed = ParseSamplesCsv(
+      "theta_l_deg,theta_v_deg,value,sigma,side\n0,1,2,1,transmission\n0,30,2,1,reflection\n",
+      "s.csv");
+  ASSERT_TRUE(mixed.ok());
+  const Status v = ValidateSamples(*mixed, 1, "s.csv");
+  ASSERT_FALSE(v.ok());
+  EXPECT_NE(v.error().message.find("s.csv:3: a reflection sample among transmission ones"),
+            std::string::npos)
+      << v.error().message;
+  // Written and read back, a synthetic reflection sweep keeps its directions.
+  SyntheticSweep spec;
+  spec.reflection = true;
+  spec.theta_l_deg = {20, 60};
+  spec.theta_v_step = 7;
+  const auto samples = MakeSyntheticSweep(spec);
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("refl_" + std::to_string(::getpid()) + ".csv"))
+          .string();
+  ASSERT_TRUE(WriteSamplesCsv(path, samples).ok());
+  auto back = ReadSamplesCsv(path);
+  std::filesystem::remove(path);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  ASSERT_EQ(back->size(), samples.size());
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    EXPECT_NEAR(optics::Dot((*back)[k].view, samples[k].view), 1.0, 1e-12) << k;
+    EXPECT_NEAR(optics::Dot((*back)[k].light, samples[k].light), 1.0, 1e-12) << k;
+  }
 }
 
 TEST(SamplesCsv, ValidationNamesTheFileLine) {

@@ -7,6 +7,7 @@
 #include <boost/math/special_functions/gamma.hpp>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <map>
 #include <memory>
@@ -784,13 +785,11 @@ Result<FitSummary> FitOnce(std::span<const Sample> samples, const FitOptions& o)
 
 }  // namespace
 
-Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
-  if (Status s = o.Validate(); !s) return s.error();
-  if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
-  if (IsReflection(samples[0]) && !HasBrdf(o.model.family))
-    return InvalidArgument(std::string(Name(o.model.family)) +
-                           " is a transmission model (Sun 2008 gives no BRDF): it cannot fit "
-                           "reflection samples; fit beckmann, ggx or phong");
+namespace {
+
+// Fit's work once the input is valid: with Floor::kAuto, the fits without and with a floor and
+// BIC's choice between them.
+Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const FitOptions& o) {
   if (o.floor != Floor::kAuto) return FitOnce(samples, o);
   // The floor only when the data need it: BIC with it lower by more than 2.
   FitOptions off = o, on = o;
@@ -820,6 +819,190 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
   chosen->floor_choice = why.str();
   chosen->seconds = seconds;
   return std::move(*chosen);
+}
+
+// The fitted model's point value at a stage position (the nominal pair), plus the floor.
+double PointAt(const FitSummary& f, const StagePosition& at) {
+  const auto [l, v] = NominalDirections(at);
+  return MeasurementModel(f.model, l, v, f.width.value, f.scale.value, f.eta.value);
+}
+
+// A sample's angle read-back term: angle_sigma * |dS/d(stage)| for the sample and arm stages, by
+// central differences of the fitted point model (the rectangle's average changes the slope by
+// far less than the term itself).
+double AngleSigma(const FitSummary& f, const Sample& s) {
+  if (!s.response || !s.response->setup) return 0;
+  const double sigma = s.response->setup->bench.angle_sigma_deg;
+  if (!(sigma > 0)) return 0;
+  const double h = 0.01;  // deg: the slope over a hundredth of a degree
+  const StagePosition at = s.response->at;
+  StagePosition a = at, b = at;
+  a.sample_deg += h;
+  b.sample_deg -= h;
+  const double d_sample = (PointAt(f, a) - PointAt(f, b)) / (2 * h);
+  a = b = at;
+  a.arm_deg += h;
+  b.arm_deg -= h;
+  const double d_arm = (PointAt(f, a) - PointAt(f, b)) / (2 * h);
+  return sigma * std::hypot(d_sample, d_arm);
+}
+
+// The samples with every response's setup changed by `change` (one copy per distinct setup).
+template <typename Change>
+std::vector<Sample> WithSetupChanged(std::span<const Sample> samples, Change change) {
+  std::map<const ResponseSetup*, std::shared_ptr<const ResponseSetup>> moved;
+  std::vector<Sample> out(samples.begin(), samples.end());
+  for (Sample& s : out) {
+    if (!s.response || !s.response->setup) continue;
+    auto& m = moved[s.response->setup.get()];
+    if (!m) {
+      ResponseSetup c = *s.response->setup;
+      change(c);
+      m = std::make_shared<const ResponseSetup>(std::move(c));
+    }
+    s.response->setup = m;
+  }
+  return out;
+}
+
+// A local refit from `fit`'s solution, its floor choice kept (nullopt when it does not converge).
+std::optional<FitSummary> Refit(std::span<const Sample> samples, FitOptions o,
+                                const FitSummary& fit) {
+  o.floor = fit.floor_fitted ? Floor::kFit : Floor::kOff;
+  o.initial_width = fit.width.value;
+  o.automatic_starts = false;
+  auto f = FitOnce(samples, o);
+  if (!f.ok() || f->status == FitStatus::kFailed) return std::nullopt;
+  return std::move(f).value();
+}
+
+// The width's change in such a refit.
+std::optional<double> RefitWidth(std::span<const Sample> samples, const FitOptions& o,
+                                 const FitSummary& fit) {
+  auto f = Refit(samples, o, fit);
+  if (!f) return std::nullopt;
+  return f->width.value - fit.width.value;
+}
+
+// GeometryUse (fitter.h): the geometry's stated uncertainties into the fit.
+Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOptions& o,
+                                FitSummary fit) {
+  const Sample* known = nullptr;
+  for (const Sample& s : samples)
+    if (s.response && s.response->setup) known = &s;
+  if (fit.status == FitStatus::kFailed) return fit;
+  if (known == nullptr || !o.use_response) {
+    fit.geometry.note =
+        "the samples carry no instrument response: the geometry's uncertainty "
+        "(angles, thickness, rectangle) is not known and not in sigma";
+    return fit;
+  }
+  const BenchOptics& b = known->response->setup->bench;
+  GeometryUse g;
+  g.stated = true;
+  std::ostringstream note;
+  // Per point: the angle read-back, through each sample's sigma.
+  double angle_part = 0;
+  if (b.angle_sigma_deg > 0) {
+    std::vector<Sample> widened(samples.begin(), samples.end());
+    for (Sample& s : widened) {
+      const double a = AngleSigma(fit, s);
+      g.angle_max_fraction = std::max(g.angle_max_fraction, a / s.sigma);
+      s.sigma = std::hypot(s.sigma, a);
+    }
+    const double tol = o.response_tolerance;
+    const double adds = std::hypot(1.0, g.angle_max_fraction) - 1;
+    note << std::setprecision(2) << "angle read-back +-" << b.angle_sigma_deg << " deg: at most "
+         << 100 * g.angle_max_fraction << " % of a sample's sigma (adding " << 100 * adds
+         << " % in quadrature)";
+    if (adds > tol * tol / 2) {
+      auto again = FitWithFloor(widened, o);
+      if (!again.ok()) return again.error();
+      if (again->status != FitStatus::kFailed) {
+        const std::string floor_choice = fit.floor_choice;
+        fit = std::move(again).value();
+        if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
+        g.angle_in_fit = true;
+        // Its share of the width's sigma: the sigma with and without it in the weights, both
+        // uninflated by chi-square (the fit without it may have been inflated by the very
+        // scatter it explains).
+        FitOptions plain = o;
+        plain.inflate_by_reduced_chi2 = false;
+        const auto with = Refit(widened, plain, fit), without = Refit(samples, plain, fit);
+        if (with && without)
+          angle_part = std::sqrt(std::max(0.0, with->width.sigma * with->width.sigma -
+                                                   without->width.sigma * without->width.sigma));
+        note << ", in the samples' sigma";
+      }
+    } else {
+      note << ", left out (the fit takes it in above " << 100 * tol * tol / 2 << " %)";
+    }
+  } else {
+    note << "angle read-back: not stated";
+  }
+  // Common to the run: the thickness and the rectangle's position, by refits.
+  if (b.thickness_sigma_mm > 0) {
+    const double t = b.thickness_sigma_mm;
+    auto d = RefitWidth(WithSetupChanged(samples, [t](ResponseSetup& c) { c.thickness_mm += t; }),
+                        o, fit);
+    if (!d)
+      return Error{ErrorCode::kNumerical,
+                   "the refit with the thickness moved by its sigma did not converge"};
+    g.width_thickness = std::abs(*d);
+    note << "; thickness +-" << t << " mm: width +-" << g.width_thickness;
+  } else {
+    note << "; thickness: not stated";
+  }
+  if (b.rectangle_sigma_px > 0) {
+    double sum2 = 0;
+    for (int axis = 0; axis < 2; ++axis) {
+      // One pixel along the axis (the other way at the sensor's edge), scaled to the sigma.
+      std::optional<double> d;
+      for (int step : {1, -1}) {
+        auto moved = WithSetupChanged(samples, [axis, step](ResponseSetup& c) {
+          (axis == 0 ? c.rectangle.x : c.rectangle.y) += step;
+        });
+        bool valid = true;
+        for (const Sample& s : moved)
+          if (s.response && s.response->setup && !s.response->setup->Validate().ok()) valid = false;
+        if (!valid) continue;
+        d = RefitWidth(moved, o, fit);
+        break;
+      }
+      if (!d)
+        return Error{ErrorCode::kNumerical,
+                     "the refit with the rectangle moved by a pixel did not converge"};
+      sum2 += *d * *d;
+    }
+    g.width_rectangle = b.rectangle_sigma_px * std::sqrt(sum2);
+    note << "; rectangle +-" << b.rectangle_sigma_px << " px: width +-" << g.width_rectangle;
+  } else {
+    note << "; rectangle position: not stated";
+  }
+  const double common = std::hypot(g.width_thickness, g.width_rectangle);
+  fit.width.sigma = std::hypot(fit.width.sigma, common);
+  fit.width.sigma_geometry = std::hypot(angle_part, common);
+  g.note = note.str();
+  fit.geometry = g;
+  return fit;
+}
+
+}  // namespace
+
+Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
+  if (Status s = o.Validate(); !s) return s.error();
+  if (Status s = ValidateSamples(samples, o.NumParams()); !s) return s.error();
+  if (IsReflection(samples[0]) && !HasBrdf(o.model.family))
+    return InvalidArgument(std::string(Name(o.model.family)) +
+                           " is a transmission model (Sun 2008 gives no BRDF): it cannot fit "
+                           "reflection samples; fit beckmann, ggx or phong");
+  const auto t0 = std::chrono::steady_clock::now();
+  auto fit = FitWithFloor(samples, o);
+  if (!fit.ok()) return fit;
+  auto out = WithGeometry(samples, o, std::move(fit).value());
+  if (out.ok())
+    out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
 }
 
 // ---- Comparing models ----------------------------------------------------------------------

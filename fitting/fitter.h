@@ -90,6 +90,27 @@ struct Parameter {
   // dark noise) account for; the rest, sqrt(sigma^2 - sigma_stat^2), is the instrument's (lamp,
   // monitor) and any inflation by chi-square. 0 when the samples carry no statistical part.
   double sigma_stat = 0;
+  // The part of sigma that the geometry's stated uncertainties account for (GeometryUse): the
+  // angle read-back through each sample's sigma, the thickness and the rectangle's position by
+  // refitting with them moved by their sigma. 0 when none is stated.
+  double sigma_geometry = 0;
+};
+
+// How the geometry's uncertainties (BenchOptics: angle_sigma_deg, thickness_sigma_mm,
+// rectangle_sigma_px, stated with the samples' instrument response) entered a fit. The angle
+// read-back is independent from point to point: it enters each sample's sigma as
+// angle_sigma * |dS/d(stage angle)| (both stages; the slope of the fitted model at the point),
+// and the fit is redone with it when it changes some sample's sigma by more than
+// response_tolerance^2 / 2 (a tenth of sigma in quadrature at the default). The thickness and
+// the rectangle's position are common to a run: an error in them moves every point together, so
+// they go into the parameters' sigma as the change of a refit with each moved by its sigma.
+struct GeometryUse {
+  bool stated = false;            // the samples carry a response: the geometry is known
+  double angle_max_fraction = 0;  // the largest angle term over a sample's sigma
+  bool angle_in_fit = false;      // the fit was redone with the angle term in the sigmas
+  double width_thickness = 0;     // |width change| per thickness_sigma_mm
+  double width_rectangle = 0;     // |width change| per rectangle_sigma_px (x and y together)
+  std::string note;               // what was used and what was left out, in words
 };
 
 // How the instrument response entered a fit (FitOptions::use_response).
@@ -113,6 +134,7 @@ struct FitSummary {
   bool floor_fitted = false;
   std::string floor_choice;  // with Floor::kAuto: why it was kept or left out
   ResponseUse response;
+  GeometryUse geometry;
   double seconds = 0;  // wall time of the fit
   double alpha_equivalent = 0;
 

@@ -5,6 +5,7 @@
 #include <iterator>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <tuple>
 
 #include "fitting/optics/fresnel.h"
 
@@ -134,6 +135,11 @@ Status BenchOptics::Validate() const {
   if (!(lens_eta > 1 && lens_eta < 3)) return InvalidArgument("bench.lens_eta must lie in (1, 3)");
   if (sensor_width < 1 || sensor_height < 1)
     return InvalidArgument("bench.sensor_width and sensor_height must be >= 1");
+  for (const auto& [name, value] : {std::pair{"angle_sigma_deg", angle_sigma_deg},
+                                    {"thickness_sigma_mm", thickness_sigma_mm},
+                                    {"rectangle_sigma_px", rectangle_sigma_px}})
+    if (!(std::isfinite(value) && value >= 0 && value < 1000))
+      return InvalidArgument(std::string("bench.") + name + " must be a finite number >= 0");
   if (!(std::isfinite(source_sr) && source_sr >= 0 && source_sr < 1) ||
       !(std::isfinite(receiver_sr) && receiver_sr >= 0 && receiver_sr < 1))
     return InvalidArgument("bench.source_sr and receiver_sr must lie in [0, 1) sr");
@@ -172,7 +178,10 @@ std::string ResponseSetup::ToJson() const {
                      {"sensor_width", b.sensor_width},
                      {"sensor_height", b.sensor_height},
                      {"source_sr", b.source_sr},
-                     {"receiver_sr", b.receiver_sr}}},
+                     {"receiver_sr", b.receiver_sr},
+                     {"angle_sigma_deg", b.angle_sigma_deg},
+                     {"thickness_sigma_mm", b.thickness_sigma_mm},
+                     {"rectangle_sigma_px", b.rectangle_sigma_px}}},
                    {"rectangle",
                     {{"offset_x", r.offset_x},
                      {"offset_y", r.offset_y},
@@ -225,6 +234,11 @@ Result<ResponseSetup> ResponseSetup::FromJson(const std::string& text) {
   integer(*bench, "bench.", "sensor_height", &b.sensor_height);
   number(*bench, "bench.", "source_sr", &b.source_sr);
   number(*bench, "bench.", "receiver_sr", &b.receiver_sr);
+  // The geometry's uncertainties came later: a run stored before them states none (0).
+  for (const auto& [key, out] : {std::pair{"angle_sigma_deg", &b.angle_sigma_deg},
+                                 {"thickness_sigma_mm", &b.thickness_sigma_mm},
+                                 {"rectangle_sigma_px", &b.rectangle_sigma_px}})
+    if (bench->contains(key)) number(*bench, "bench.", key, out);
   SensorRectangle& r = s.rectangle;
   integer(*rect, "rectangle.", "offset_x", &r.offset_x);
   integer(*rect, "rectangle.", "offset_y", &r.offset_y);
@@ -239,6 +253,11 @@ Result<ResponseSetup> ResponseSetup::FromJson(const std::string& text) {
     return InvalidArgument("response: " + missing + " is missing or not a number of its kind");
   if (Status v = s.Validate(); !v.ok()) return InvalidArgument("response: " + v.error().message);
   return s;
+}
+
+std::pair<V, V> NominalDirections(const StagePosition& at) {
+  const double s = at.sample_deg * kDeg, phi = at.azimuth_deg * kDeg;
+  return {TurnByMinus(InPlane(s), phi), TurnByMinus(InPlane(s - at.arm_deg * kDeg), phi)};
 }
 
 Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition& at,
@@ -266,8 +285,7 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
                         : 1;
   Response out;
   out.pixels = static_cast<double>(n);
-  out.l0 = TurnByMinus(source_dir, phi);
-  out.v0 = TurnByMinus(camera_dir, phi);
+  std::tie(out.l0, out.v0) = NominalDirections(at);
   out.source_half_angle = ConeHalfAngle(b.source_sr);
   out.receiver_half_angle = ConeHalfAngle(b.receiver_sr);
   for (int row = r0; row < r1; row += block) {

@@ -33,6 +33,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "common/result.h"
@@ -52,6 +53,16 @@ struct BenchOptics {
   int sensor_width = 512, sensor_height = 512;
   double source_sr = 0.000076;    // the fibre end's solid angle at the sample
   double receiver_sr = 0.000039;  // the lens aperture's at the sample
+  // What the geometry is known to: the uncertainty budget's geometry components (fitter.h,
+  // GeometryBudget). 0 means not stated, and the fit says it leaves that component out.
+  //   angle_sigma_deg: each stage's read-back angle, per point (encoder resolution / sqrt 12 and
+  //     repeatability); it enters each sample's sigma through the local slope of the signal.
+  //   thickness_sigma_mm: the plate's thickness (so the sphere centre's offset), common to a run.
+  //   rectangle_sigma_px: the rectangle's position against the optical axis (the camera's
+  //     alignment), output pixels, common to a run.
+  double angle_sigma_deg = 0;
+  double thickness_sigma_mm = 0;
+  double rectangle_sigma_px = 0;
 
   Status Validate() const;  // positive, finite lengths; sensor size; apertures >= 0
 };
@@ -92,6 +103,10 @@ struct Response {
   double source_half_angle = 0, receiver_half_angle = 0;  // radians (WithApertures)
   bool apertures = false;  // whether the rays already carry the aperture cones
 };
+
+// The nominal pair of a stage position: l0 toward the source, v0 toward the camera (the central
+// ray through O), in the sample frame. The camera on the air side gives a reflection pair.
+std::pair<optics::Vec3<double>, optics::Vec3<double>> NominalDirections(const StagePosition& at);
 
 // The response of a point: through the lens for a camera on the glass side (transmission), straight
 // to the rough face for one on the air side (reflection; each ray weighted by the source's inverse

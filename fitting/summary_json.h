@@ -10,7 +10,10 @@ namespace gonio::fitting {
 
 inline nlohmann::json ToJson(const FitSummary& f) {
   auto param = [](const Parameter& p) {
-    return nlohmann::json{{"value", p.value}, {"sigma", p.sigma}, {"sigma_stat", p.sigma_stat}};
+    return nlohmann::json{{"value", p.value},
+                          {"sigma", p.sigma},
+                          {"sigma_stat", p.sigma_stat},
+                          {"sigma_geometry", p.sigma_geometry}};
   };
   return {{"model", Describe(f.model)},
           {"family", Name(f.model.family)},
@@ -39,6 +42,13 @@ inline nlohmann::json ToJson(const FitSummary& f) {
             {"apertures", f.response.apertures},
             {"rays", f.response.rays},
             {"rounds", f.response.rounds}}},
+          {"geometry",
+           {{"stated", f.geometry.stated},
+            {"angle_max_fraction", f.geometry.angle_max_fraction},
+            {"angle_in_fit", f.geometry.angle_in_fit},
+            {"width_thickness", f.geometry.width_thickness},
+            {"width_rectangle", f.geometry.width_rectangle},
+            {"note", f.geometry.note}}},
           {"seconds", f.seconds}};
 }
 

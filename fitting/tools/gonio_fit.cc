@@ -62,14 +62,16 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
               << std::setw(10) << std::setprecision(4) << f.reduced_chi2 << std::setw(10)
               << std::setprecision(3) << choice.delta_bic[k] << ToString(f.status) << "\n";
     if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
-    if (f.width.sigma_stat > 0)
+    if (f.width.sigma_stat > 0 || f.width.sigma_geometry > 0)
       std::cout << "    " << WidthName(f.model.family) << "'s sigma " << std::setprecision(3)
                 << f.width.sigma << ": statistical (shot, read, dark) " << f.width.sigma_stat
                 << ", instrument (lamp, monitor" << (f.reduced_chi2 > 1 ? ", chi2 inflation" : "")
                 << ") "
                 << std::sqrt(std::max(0.0, f.width.sigma * f.width.sigma -
-                                               f.width.sigma_stat * f.width.sigma_stat))
-                << "\n";
+                                               f.width.sigma_stat * f.width.sigma_stat -
+                                               f.width.sigma_geometry * f.width.sigma_geometry))
+                << ", geometry " << f.width.sigma_geometry << "\n";
+    if (!f.geometry.note.empty()) std::cout << "    geometry: " << f.geometry.note << "\n";
     if (f.response.samples_with_response > 0)
       std::cout << "    instrument response: " << f.response.rectangle << " of " << f.n_points
                 << " samples through the rectangle's rays (" << f.response.apertures

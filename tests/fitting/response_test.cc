@@ -3,7 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <iostream>
 #include <random>
+#include <tuple>
 
 #include "common/bench_angles.h"
 #include "fitting/fitter.h"
@@ -246,6 +248,112 @@ TEST(ResponseTest, AFitThroughTheResponseRecoversTheTruthAndThePointModelIsBiase
   ASSERT_TRUE(point.ok());
   EXPECT_EQ(point->response.rectangle, 0);
   EXPECT_GT(point->reduced_chi2, 4 * with->reduced_chi2);  // the point model cannot fit them
+}
+
+// Samples of a 1 x 3 mm rectangle made on a bench that differs from the one the samples state:
+// the values come from `made` at stage angles moved by N(0, jitter_deg) each, while the samples
+// carry `stated` and the nominal angles. 0.2 % noise, incidences 0, 30, 60.
+std::vector<fitting::Sample> MisstatedSamples(const sim::GroundTruth& truth,
+                                              const fitting::ResponseSetup& made,
+                                              const fitting::ResponseSetup& stated,
+                                              double jitter_deg, std::uint64_t seed) {
+  auto setup = std::make_shared<const fitting::ResponseSetup>(stated);
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0, 1);
+  std::vector<fitting::Sample> out;
+  for (double ti : {0.0, 30.0, 60.0}) {
+    for (double off = -20; off <= 20; off += 2.5) {
+      const auto at = At(ti, off);
+      auto true_at = at;
+      true_at.sample_deg += jitter_deg * noise(rng);
+      true_at.arm_deg += jitter_deg * noise(rng);
+      auto r = fitting::ComputeResponse(made, true_at);
+      if (!r.ok()) continue;
+      fitting::Sample s;
+      std::tie(s.light, s.view) = fitting::NominalDirections(at);
+      const double clean = 1000 * ResponseRectangle(truth, *r);
+      s.sigma = s.sigma_stat = 0.002 * clean + 0.1;
+      s.value = clean + s.sigma * noise(rng);
+      s.response = fitting::PointResponse{setup, at};
+      out.push_back(s);
+    }
+  }
+  return out;
+}
+
+// The angle read-back (per point): values measured at angles 0.05 deg off the read-back ones
+// scatter by the slope times 0.05 deg, several times the 0.2 % noise on ground glass's flanks. Not
+// stated, the fit calls the true model poor; stated, chi-square is honest again and alpha's
+// interval covers the truth.
+TEST(ResponseTest, TheAngleReadBackEntersEachSamplesSigmaThroughTheSlope) {
+  const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
+  auto made = CentredSetup(1, 3, 6);
+  made.bench.source_sr = made.bench.receiver_sr = 0;
+  auto stated = made;
+  stated.bench.angle_sigma_deg = 0.05;
+  fitting::FitOptions o;
+  int covered = 0;
+  for (std::uint64_t seed : {21, 22, 23, 24, 25}) {
+    auto blind = fitting::Fit(MisstatedSamples(*truth, made, made, 0.05, seed), o);
+    auto told = fitting::Fit(MisstatedSamples(*truth, made, stated, 0.05, seed), o);
+    ASSERT_TRUE(blind.ok() && told.ok());
+    EXPECT_GT(blind->reduced_chi2, 2) << seed;
+    EXPECT_FALSE(blind->geometry.angle_in_fit);
+    EXPECT_TRUE(told->geometry.angle_in_fit) << told->geometry.note;
+    EXPECT_GT(told->geometry.angle_max_fraction, 1) << told->geometry.note;
+    EXPECT_LT(told->reduced_chi2, 1.6) << seed << ": " << told->geometry.note;
+    EXPECT_GT(told->width.sigma_geometry, 0);
+    covered += std::abs(told->width.value - 0.344) < 2 * told->width.sigma;
+  }
+  EXPECT_GE(covered, 4);
+}
+
+// The thickness (common to the run): a plate 0.6 mm thicker than stated moves every point the
+// same way. Its stated sigma enters alpha's sigma as the refit's change, which matches the change
+// a fit with the true thickness makes. (It is small: on ground glass under a 3 x 10 mm rectangle
+// 0.6 mm moves alpha by about 1e-5, a tenth of the statistical sigma; at alpha 0.1 too.)
+TEST(ResponseTest, TheThicknessAndTheRectanglesPositionEnterAlphasSigmaAsRefits) {
+  const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
+  auto made = CentredSetup(3, 10, 9.6);
+  made.bench.source_sr = made.bench.receiver_sr = 0;
+  auto stated = made;
+  stated.thickness_mm = 9.0;
+  stated.bench.thickness_sigma_mm = 0.6;
+  const auto samples = MisstatedSamples(*truth, made, stated, 0, 31);
+  fitting::FitOptions o;
+  auto fit = fitting::Fit(samples, o);
+  ASSERT_TRUE(fit.ok()) << fit.error().message;
+  EXPECT_TRUE(fit->geometry.stated);
+  EXPECT_GT(fit->geometry.width_thickness, 0);
+  // The same data fitted with the true thickness stated, independently of the budget.
+  auto right = made;
+  const auto at_truth = MisstatedSamples(*truth, made, right, 0, 31);
+  auto exact = fitting::Fit(at_truth, o);
+  ASSERT_TRUE(exact.ok());
+  const double shift = std::abs(fit->width.value - exact->width.value);
+  EXPECT_NEAR(fit->geometry.width_thickness, shift, 0.3 * shift)
+      << fit->geometry.note << "; the true thickness moves alpha by " << shift;
+  EXPECT_LT(std::abs(fit->width.value - 0.344), 2 * fit->width.sigma) << fit->geometry.note;
+  std::cout << "[ info ] alpha " << fit->width.value << " +- " << fit->width.sigma << " (geometry "
+            << fit->width.sigma_geometry << "); at the true thickness " << exact->width.value
+            << " +- " << exact->width.sigma << "; " << fit->geometry.note << "\n";
+  EXPECT_GE(fit->width.sigma_geometry, fit->geometry.width_thickness);
+  // The rectangle's position: stated, it adds its refit; not stated, the note says so.
+  stated.bench.rectangle_sigma_px = 1;
+  auto with_rect = fitting::Fit(MisstatedSamples(*truth, made, stated, 0, 31), o);
+  ASSERT_TRUE(with_rect.ok());
+  EXPECT_GT(with_rect->geometry.width_rectangle, 0);
+  EXPECT_GT(with_rect->width.sigma_geometry, fit->width.sigma_geometry);
+  EXPECT_NE(fit->geometry.note.find("rectangle position: not stated"), std::string::npos)
+      << fit->geometry.note;
+  // Samples without a response say that the geometry is not known.
+  auto bare = samples;
+  for (auto& s : bare) s.response.reset();
+  auto unknown = fitting::Fit(bare, o);
+  ASSERT_TRUE(unknown.ok());
+  EXPECT_FALSE(unknown->geometry.stated);
+  EXPECT_EQ(unknown->width.sigma_geometry, 0);
+  EXPECT_NE(unknown->geometry.note.find("not known"), std::string::npos);
 }
 
 TEST(ResponseTest, TheFloorIsKeptOnlyWhenTheDataNeedIt) {

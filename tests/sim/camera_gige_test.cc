@@ -72,7 +72,11 @@ class CameraGigETest : public ::testing::Test {
     ArvStream* stream = arv_camera_create_stream(client_.get(), nullptr, nullptr, &e);
     EXPECT_EQ(e, nullptr);
     // Lost packets stay lost (the fake camera does not resend): an incomplete frame is reported.
-    g_object_set(stream, "packet-resend", ARV_GV_STREAM_PACKET_RESEND_NEVER, nullptr);
+    // A loaded machine delays packets on loopback too: a frame is given 1 s to complete (not
+    // Aravis's 100 ms) and a socket buffer that holds a whole frame, so only the fault plan's
+    // lost packets fail a frame. CI once saw a whole frame fail under load without these.
+    g_object_set(stream, "packet-resend", ARV_GV_STREAM_PACKET_RESEND_NEVER, "frame-retention",
+                 guint{1000000}, "socket-buffer", ARV_GV_STREAM_SOCKET_BUFFER_AUTO, nullptr);
     const guint payload = arv_camera_get_payload(client_.get(), &e);
     for (int k = 0; k < 2; ++k) arv_stream_push_buffer(stream, arv_buffer_new(payload, nullptr));
     arv_camera_start_acquisition(client_.get(), &e);
@@ -189,7 +193,7 @@ TEST_F(CameraGigEFaults, FaultPlanFramesArriveIncompleteOrNeverAndTheCoolerFails
   EXPECT_TRUE(Snap(10000, 1500, &status).empty());
   EXPECT_TRUE(status == ARV_BUFFER_STATUS_MISSING_PACKETS || status == ARV_BUFFER_STATUS_TIMEOUT)
       << status;
-  EXPECT_FALSE(Snap(10000, 3000, &status).empty());  // frame 2: whole again
+  EXPECT_FALSE(Snap(10000, 3000, &status).empty()) << status;  // frame 2: whole again
   // Frame 3 never leaves the camera: no frame comes (on a loaded machine Aravis may hand back
   // an unfilled buffer instead of none; either way no image).
   EXPECT_TRUE(Snap(10000, 800, &status).empty());

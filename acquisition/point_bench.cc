@@ -89,6 +89,7 @@ Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoin
     run.fit = outcome->fit;
     run.stop = outcome->message;
     run.reached_target = outcome->stop == AdaptiveOutcome::Stop::kTarget;
+    run.stopped_at_budget = outcome->stop == AdaptiveOutcome::Stop::kBudget;
     run.points = static_cast<int>(seen.size()) + outcome->chosen;
   } else {
     auto fit = FitSeen(seen, plan.specimen.eta);
@@ -127,10 +128,27 @@ std::string AdaptiveForecast::Describe() const {
   char text[160];
   std::snprintf(text, sizeof text,
                 "adaptive: %d simulated runs: %.0f s (10-90 %%: %.0f-%.0f s), the target reached "
-                "in %d",
-                runs, median_s, low_s, high_s, reached);
+                "in %d of %d",
+                runs, median_s, low_s, high_s, reached, runs);
   std::string out = text;
   if (failed > 0) out += ", " + std::to_string(failed) + " failed";
+  // Said before the run, not found out after it: the runs that fall short, why, how far, and
+  // what would help (a planner that runs out of candidates needs a finer grid, not more time).
+  if (at_budget + exhausted > 0) {
+    std::string why;
+    if (at_budget > 0) why += std::to_string(at_budget) + " stopped at the budget";
+    if (exhausted > 0) {
+      if (!why.empty()) why += " and ";
+      why += std::to_string(exhausted) + " ran out of candidates";
+    }
+    std::snprintf(text, sizeof text,
+                  " at sigma(alpha)/alpha %.2g (the target %.2g): ", short_median_rel, target);
+    why += text;
+    if (at_budget > 0) why += "a larger budget_s";
+    if (at_budget > 0 && exhausted > 0) why += "; ";
+    if (exhausted > 0) why += "a finer view_step_deg or more incidences to choose from";
+    out += "; " + why;
+  }
   return out;
 }
 
@@ -139,7 +157,7 @@ Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedP
   for (PlannedPoint& p : points)
     if (p.skipped && p.reason == kCandidateReason) p.skipped = false, p.reason.clear();
   AdaptiveForecast f;
-  std::vector<double> times, exposures;
+  std::vector<double> times, exposures, short_rel;
   std::string first_error;
   for (int r = 1; r <= runs; ++r) {
     PointBenchOptions o = like;
@@ -153,7 +171,12 @@ Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedP
     }
     times.push_back(run->spent_s);
     exposures.push_back(run->spent_s - run->moved_s);
-    if (run->reached_target) ++f.reached;
+    if (run->reached_target) {
+      ++f.reached;
+    } else if (plan.strategy.kind == "adaptive") {
+      ++(run->stopped_at_budget ? f.at_budget : f.exhausted);
+      short_rel.push_back(run->fit.width.sigma / run->fit.width.value);
+    }
   }
   if (times.empty())
     return Error{ErrorCode::kFailedPrecondition,
@@ -168,6 +191,8 @@ Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedP
   };
   f.median_s = at(times, 0.5), f.low_s = at(times, 0.1), f.high_s = at(times, 0.9);
   f.exposure_median_s = at(exposures, 0.5);
+  f.target = plan.strategy.target_rel_sigma_alpha;
+  if (!short_rel.empty()) f.short_median_rel = at(short_rel, 0.5);
   return f;
 }
 

@@ -78,8 +78,9 @@ struct SimulatedRun {
   double moved_s = 0;  // of which moves
   double first_s = 0;  // of which the points the strategy selected first (adaptive: coarse scan)
   int points = 0;
-  std::string stop;             // an adaptive run's outcome; empty otherwise
-  bool reached_target = false;  // an adaptive run that stopped at its target
+  std::string stop;                // an adaptive run's outcome; empty otherwise
+  bool reached_target = false;     // an adaptive run that stopped at its target
+  bool stopped_at_budget = false;  // ... or at its budget (neither: it ran out of candidates)
 };
 Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoint>& grid,
                                  PointBenchOptions options);
@@ -101,9 +102,13 @@ PointBenchOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
 // (seeds 1..runs: the same inputs give the same forecast), each to its target or its budget.
 struct AdaptiveForecast {
   int runs = 0, reached = 0, failed = 0;       // failed: the simulated run's fit failed
+  int at_budget = 0, exhausted = 0;            // the runs that stopped short of the target, by why
   double median_s = 0, low_s = 0, high_s = 0;  // bench seconds: median, 10th and 90th percentile
   double exposure_median_s = 0;                // of the time without moves
-  // "adaptive: simulated 20 runs: 2410 s (10-90 %: 2100-2900 s), the target reached in 18"
+  double target = 0;                           // the plan's sigma(alpha)/alpha (0: none)
+  double short_median_rel = 0;  // sigma(alpha)/alpha where the short runs stopped (median)
+  // "adaptive: 20 simulated runs: 2410 s (10-90 %: 2100-2900 s), the target reached in 18 of 20;
+  // 2 stopped at the budget at sigma(alpha)/alpha 2.4e-05 (the target 2e-05): a larger budget_s"
   std::string Describe() const;
 };
 // `points`: the plan's grid, or its points as ExpandPoints marked them (the candidates are

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iostream>
 #include <string>
 #include <vector>
 
@@ -369,6 +370,49 @@ TEST(Strategy, ABatchEndsWhereItsPredictionReachesTheTarget) {
   ASSERT_TRUE(outcome.ok()) << outcome.error().message;
   EXPECT_EQ(outcome->stop, AdaptiveOutcome::Stop::kTarget) << outcome->message;
   EXPECT_GE(trimmed, 1) << "no batch was predicted to reach the target: the test shows nothing";
+}
+
+// Before the run, the forecast says how many simulated runs fall short of the target, why, how far,
+// and what would help: a tight budget needs more time, a coarse grid more candidates.
+TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
+  Plan tight = PointBenchPlan(2, "adaptive");
+  tight.strategy.budget_s = 1500;
+  tight.strategy.target_rel_sigma_alpha = 1e-9;
+  auto a = ForecastAdaptive(tight, ExpandGrid(tight, PlanContext{}), PointBenchOptions{}, 3);
+  ASSERT_TRUE(a.ok()) << a.error().message;
+  EXPECT_EQ(a->reached, 0);
+  EXPECT_EQ(a->at_budget, 3);
+  EXPECT_GT(a->short_median_rel, 1e-6);  // where the runs stopped, far from the target
+  EXPECT_NE(a->Describe().find("in 0 of 3; 3 stopped at the budget at sigma(alpha)/alpha"),
+            std::string::npos)
+      << a->Describe();
+  EXPECT_NE(a->Describe().find("(the target 1e-09): a larger budget_s"), std::string::npos)
+      << a->Describe();
+
+  // A 20 deg grid with time to spare: every candidate is taken again and again until the planner
+  // has nothing left that adds to alpha. More time would not help; a finer grid might.
+  Plan coarse = PointBenchPlan(20, "adaptive");
+  coarse.strategy.budget_s = 1e8;
+  coarse.strategy.target_rel_sigma_alpha = 1e-9;
+  auto b = ForecastAdaptive(coarse, ExpandGrid(coarse, PlanContext{}), PointBenchOptions{}, 2);
+  ASSERT_TRUE(b.ok()) << b.error().message;
+  EXPECT_EQ(b->exhausted, 2) << b->Describe();
+  // A start on this grid walks to alpha -> infinity, k -> 0 (a flat lobe under the floor); Ceres
+  // logs the failed evaluation and the fit keeps the starts that converge.
+  std::cout << "[ info ] " << a->Describe() << "\n[ info ] " << b->Describe() << "\n";
+  EXPECT_NE(b->Describe().find("2 ran out of candidates"), std::string::npos) << b->Describe();
+  EXPECT_NE(b->Describe().find("a finer view_step_deg"), std::string::npos) << b->Describe();
+
+  // A target the runs reach: nothing to warn of.
+  Plan reachable = PointBenchPlan(2, "adaptive");
+  reachable.strategy.budget_s = 1e6;
+  reachable.strategy.target_rel_sigma_alpha = 1e-4;
+  auto c =
+      ForecastAdaptive(reachable, ExpandGrid(reachable, PlanContext{}), PointBenchOptions{}, 3);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  EXPECT_EQ(c->reached, 3) << c->Describe();
+  EXPECT_EQ(c->Describe().find("stopped at"), std::string::npos) << c->Describe();
+  EXPECT_EQ(c->Describe().find("ran out"), std::string::npos) << c->Describe();
 }
 
 // The estimate before a specimen's first adaptive run (issue #17): the bench's noise and

@@ -692,6 +692,24 @@ TEST_F(DaemonApi, SchedulesAreValidatedWithFileAndLineAndDryRunsQueueNothing) {
   const auto bad_fit = post("[[job]]\nplan = \"quick.toml\"\nfit = [\"cook-torrance\"]\n", plans);
   EXPECT_NE(message(bad_fit.second).find("night.toml:3: unknown model"), std::string::npos)
       << message(bad_fit.second);
+  // Sun 2008 is a transmission model: a reflection plan that asks for it is refused at once.
+  std::string reflection = kPlan;
+  const std::string refracted = "view_about = \"refracted\"";
+  reflection.replace(reflection.find(refracted), refracted.size(),
+                     "view_about = \"specular\"\nside = \"reflection\"");
+  const auto sun_on_reflection =
+      post("[[job]]\nplan = \"quick.toml\"\nfit = [\"beckmann\", \"sun2008\"]\n",
+           json{{"quick.toml", reflection}});
+  EXPECT_EQ(sun_on_reflection.first, 400);
+  EXPECT_NE(message(sun_on_reflection.second)
+                .find("night.toml:3: 'fit' names sun2008, a transmission model, but plan "
+                      "'quick.toml' measures reflection"),
+            std::string::npos)
+      << message(sun_on_reflection.second);
+  EXPECT_EQ(post("[[job]]\nplan = \"quick.toml\"\nfit = [\"beckmann\"]\n",
+                 json{{"quick.toml", reflection}}, true)
+                .first,
+            200);
   const auto no_setpoint =
       post("[[job]]\nplan = \"quick.toml\"\n[job.cooler]\nhold_s = 5\n", plans);
   EXPECT_NE(message(no_setpoint.second).find("needs 'setpoint_c'"), std::string::npos)

@@ -103,13 +103,15 @@ struct Parameter {
 // and the fit is redone with it when it changes some sample's sigma by more than
 // response_tolerance^2 / 2 (a tenth of sigma in quadrature at the default). The thickness and
 // the rectangle's position are common to a run: an error in them moves every point together, so
-// they go into the parameters' sigma as the change of a refit with each moved by its sigma.
+// they go into the parameters' sigma as the change of a least-squares refit with each moved by
+// its sigma (against one unmoved); one that does not converge is left out and named in the note.
 struct GeometryUse {
   bool stated = false;            // the samples carry a response: the geometry is known
   double angle_max_fraction = 0;  // the largest angle term over a sample's sigma
   bool angle_in_fit = false;      // the fit was redone with the angle term in the sigmas
   double width_thickness = 0;     // |width change| per thickness_sigma_mm
   double width_rectangle = 0;     // |width change| per rectangle_sigma_px (x and y together)
+  bool left_out = false;          // a refit did not converge: its part is not in sigma (note)
   std::string note;               // what was used and what was left out, in words
 };
 

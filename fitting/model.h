@@ -12,6 +12,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <type_traits>
 
 #include "fitting/optics/microfacet.h"
 #include "fitting/optics/sun2008.h"
@@ -45,24 +46,34 @@ std::string Describe(const ModelSpec& m);
 // 20); Sun 2008 is a transmission model only, and the fitter refuses it for reflection samples.
 bool HasBrdf(Family f);
 
+// Calls op(d) with the microfacet distribution of one of Walter's families (Beckmann, GGX,
+// Phong) at `width`: the one place a family becomes a distribution. Not for Sun 2008, which has
+// its own functions (sun2008.h); callers branch on it first.
+template <typename T, typename Op>
+T WithWalterDistribution(const ModelSpec& m, const T& width, Op&& op) {
+  using namespace optics;
+  switch (m.family) {
+    case Family::kBeckmann:
+      return op(BeckmannDistribution<T>(width, m.g1));
+    case Family::kGgx:
+      return op(GgxDistribution<T>(width));
+    case Family::kPhong:
+      return op(PhongDistribution<T>(width));
+    case Family::kSun2008:
+      break;
+  }
+  return T(0);
+}
+
 // The transmitted radiance BTDF f(l, v) of the family (microfacet.h conventions: l = light,
 // v = view, eta = index below / above), for any scalar T (double or ceres::Jet).
 template <typename T>
 T ModelBtdf(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>& v, const T& width,
             const T& eta) {
-  using namespace optics;
-  switch (m.family) {
-    case Family::kBeckmann:
-      return RoughDielectricBsdf<BeckmannDistribution<T>>(BeckmannDistribution<T>(width, m.g1), eta)
-          .Btdf(l, v);
-    case Family::kGgx:
-      return RoughDielectricBsdf<GgxDistribution<T>>(GgxDistribution<T>(width), eta).Btdf(l, v);
-    case Family::kPhong:
-      return RoughDielectricBsdf<PhongDistribution<T>>(PhongDistribution<T>(width), eta).Btdf(l, v);
-    case Family::kSun2008:
-      return Sun2008Btdf(l, v, width, eta);
-  }
-  return T(0);
+  if (m.family == Family::kSun2008) return optics::Sun2008Btdf(l, v, width, eta);
+  return WithWalterDistribution(m, width, [&](const auto& d) {
+    return optics::RoughDielectricBsdf<std::decay_t<decltype(d)>>(d, eta).Btdf(l, v);
+  });
 }
 
 // The BRDF of the family, eq. 20: F(l, h_r) G(l, v, h_r) D(h_r) / (4 |l.n| |v.n|), l and v both
@@ -70,19 +81,10 @@ T ModelBtdf(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>&
 template <typename T>
 T ModelBrdf(const ModelSpec& m, const optics::Vec3<T>& l, const optics::Vec3<T>& v, const T& width,
             const T& eta) {
-  using namespace optics;
-  switch (m.family) {
-    case Family::kBeckmann:
-      return RoughDielectricBsdf<BeckmannDistribution<T>>(BeckmannDistribution<T>(width, m.g1), eta)
-          .Brdf(l, v);
-    case Family::kGgx:
-      return RoughDielectricBsdf<GgxDistribution<T>>(GgxDistribution<T>(width), eta).Brdf(l, v);
-    case Family::kPhong:
-      return RoughDielectricBsdf<PhongDistribution<T>>(PhongDistribution<T>(width), eta).Brdf(l, v);
-    case Family::kSun2008:
-      return T(0);
-  }
-  return T(0);
+  if (m.family == Family::kSun2008) return T(0);
+  return WithWalterDistribution(m, width, [&](const auto& d) {
+    return optics::RoughDielectricBsdf<std::decay_t<decltype(d)>>(d, eta).Brdf(l, v);
+  });
 }
 
 // ---- The same model split for a fixed eta (the fitter's fast path) ---------------------------
@@ -107,43 +109,18 @@ FixedGeometry PrecomputeGeometry(const optics::Vec3<double>& l, const optics::Ve
 // so the fitter computes it once per incidence.
 template <typename T>
 T ShadowingLight(const ModelSpec& m, const optics::Vec3<double>& light, const T& width) {
-  using namespace optics;
-  const Vec3<T> l(light);
-  switch (m.family) {
-    case Family::kBeckmann:
-      return BeckmannDistribution<T>(width, m.g1).G1(l);
-    case Family::kGgx:
-      return GgxDistribution<T>(width).G1(l);
-    case Family::kPhong:
-      return PhongDistribution<T>(width).G1(l);
-    case Family::kSun2008:
-      return Sun2008Visibility(l, width);
-  }
-  return T(0);
+  const optics::Vec3<T> l(light);
+  if (m.family == Family::kSun2008) return optics::Sun2008Visibility(l, width);
+  return WithWalterDistribution(m, width, [&](const auto& d) { return d.G1(l); });
 }
 
 // D(h) times the view part of the shadowing.
 template <typename T>
 T DTimesShadowingView(const ModelSpec& m, const FixedGeometry& g, const T& width) {
-  using namespace optics;
-  const Vec3<T> v(g.v), h(g.h);
-  switch (m.family) {
-    case Family::kBeckmann: {
-      const BeckmannDistribution<T> d(width, m.g1);
-      return d.D(h) * d.G1(v);
-    }
-    case Family::kGgx: {
-      const GgxDistribution<T> d(width);
-      return d.D(h) * d.G1(v);
-    }
-    case Family::kPhong: {
-      const PhongDistribution<T> d(width);
-      return d.D(h) * d.G1(v);
-    }
-    case Family::kSun2008:
-      return Sun2008OrientationD(h, width) * Sun2008Visibility(v, width);
-  }
-  return T(0);
+  const optics::Vec3<T> v(g.v), h(g.h);
+  if (m.family == Family::kSun2008)
+    return optics::Sun2008OrientationD(h, width) * optics::Sun2008Visibility(v, width);
+  return WithWalterDistribution(m, width, [&](const auto& d) { return d.D(h) * d.G1(v); });
 }
 
 template <typename T>

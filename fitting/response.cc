@@ -39,15 +39,25 @@ struct Traced {
   double weight;
 };
 
-// One ray from the pinhole through the object-plane point (x, y) mm.
-std::optional<Traced> TraceOne(const ResponseSetup& s, const V& source_dir, const V& camera_dir,
-                               double phi, double x_mm, double y_mm) {
+// The camera's pinhole and its ray through the object-plane point (x, y) mm, with the sphere's
+// centre O (the plate's offset from the centred thickness puts it below the rough face).
+struct CameraRay {
+  V origin, pinhole, d;
+};
+CameraRay RayThrough(const ResponseSetup& s, const V& camera_dir, double x_mm, double y_mm) {
   const BenchOptics& b = s.bench;
   const V origin{0, 0, -(s.thickness_mm - b.centred_thickness_mm)};
   const V across{camera_dir.z, 0, -camera_dir.x};
   const V up{0, 1, 0};
   const V pinhole = origin + camera_dir * b.camera_distance_mm;
-  const V d = Normalize(origin + across * x_mm + up * y_mm - pinhole);
+  return {origin, pinhole, Normalize(origin + across * x_mm + up * y_mm - pinhole)};
+}
+
+// One ray from the pinhole through the object-plane point (x, y) mm.
+std::optional<Traced> TraceOne(const ResponseSetup& s, const V& source_dir, const V& camera_dir,
+                               double phi, double x_mm, double y_mm) {
+  const BenchOptics& b = s.bench;
+  const auto [origin, pinhole, d] = RayThrough(s, camera_dir, x_mm, y_mm);
   // The first intersection with the sphere |p - O| = R from the pinhole.
   const V oc = pinhole - origin;
   const double half_b = Dot(oc, d);
@@ -80,11 +90,7 @@ std::optional<Traced> TraceOne(const ResponseSetup& s, const V& source_dir, cons
 std::optional<Traced> TraceReflected(const ResponseSetup& s, const V& source_dir,
                                      const V& camera_dir, double phi, double x_mm, double y_mm) {
   const BenchOptics& b = s.bench;
-  const V origin{0, 0, -(s.thickness_mm - b.centred_thickness_mm)};
-  const V across{camera_dir.z, 0, -camera_dir.x};
-  const V up{0, 1, 0};
-  const V pinhole = origin + camera_dir * b.camera_distance_mm;
-  const V d = Normalize(origin + across * x_mm + up * y_mm - pinhole);
+  const auto [origin, pinhole, d] = RayThrough(s, camera_dir, x_mm, y_mm);
   if (!(d.z < 0)) return std::nullopt;  // the ray never comes down to the face
   const V hit = pinhole + d * (-pinhole.z / d.z);
   if (std::abs(hit.x) > b.plate_half_width_mm || std::abs(hit.y) > b.plate_half_width_mm)

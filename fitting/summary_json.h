@@ -46,6 +46,7 @@ inline nlohmann::json ToJson(const FitSummary& f) {
            {{"stated", f.geometry.stated},
             {"angle_max_fraction", f.geometry.angle_max_fraction},
             {"angle_in_fit", f.geometry.angle_in_fit},
+            {"left_out", f.geometry.left_out},
             {"width_thickness", f.geometry.width_thickness},
             {"width_rectangle", f.geometry.width_rectangle},
             {"note", f.geometry.note}}},

@@ -21,6 +21,8 @@ packages=(
   python3 python3-numpy python3-scipy python3-matplotlib
   # the console's browser test (goniod.console_in_a_browser): headless Chromium, driven by Selenium
   chromium chromium-driver python3-selenium
+  # the GigE tests' network namespaces of their own (tests/support/own_loopback.sh: unshare, ip)
+  util-linux iproute2
 )
 
 if [[ "${1:-}" == "--print" ]]; then

@@ -27,7 +27,8 @@ scripts/check-layers.sh
 echo "== build (warnings are errors) =="
 # The benchmarks are not built here (scripts/bench.sh builds its own release tree); CI compiles
 # them with warnings as errors in the sanitizer build (scripts/sanitize.sh).
-cmake -S . -B build -DGONIO_WERROR=ON -DGONIO_BUILD_BENCH=OFF -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
+cmake -S . -B build -DGONIO_WERROR=ON -DGONIO_BUILD_BENCH=OFF -DGONIO_DEBUG_INFO=OFF \
+  -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
 cmake --build build -j "$jobs"
 echo "== tests =="
 ctest --test-dir build --output-on-failure -j "$jobs" --timeout 900

@@ -950,6 +950,17 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   // Common to the run: the thickness and the rectangle's position, by refits. One that does not
   // converge leaves its part out of sigma, and the note says so; the fit itself stands.
   std::optional<FitSummary> base;
+  if (fit.status == FitStatus::kUnconstrained &&
+      (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0)) {
+    // Four refits with the response each (about two thirds of such a fit's time) for a width
+    // the data do not constrain: not worth it. A poor fit keeps them: a geometry that is off is
+    // one reason a fit is poor.
+    note << "; thickness and rectangle: not computed (the data do not constrain the width)";
+    g.note = note.str();
+    fit.width.sigma_geometry = angle_part;
+    fit.geometry = g;
+    return fit;
+  }
   if (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0) {
     FitOptions ls = o;
     ls.loss = Loss::kNone;

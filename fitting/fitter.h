@@ -105,6 +105,8 @@ struct Parameter {
 // the rectangle's position are common to a run: an error in them moves every point together, so
 // they go into the parameters' sigma as the change of a least-squares refit with each moved by
 // its sigma (against one unmoved); one that does not converge is left out and named in the note.
+// They are not computed for an unconstrained fit (no width to budget; the refits are most of a
+// response fit's time).
 struct GeometryUse {
   bool stated = false;            // the samples carry a response: the geometry is known
   double angle_max_fraction = 0;  // the largest angle term over a sample's sigma

@@ -52,12 +52,23 @@ class Api {
  public:
   Api(const std::string& url, std::string token) : cli_(url), token_(std::move(token)) {
     cli_.set_connection_timeout(5);
-    cli_.set_read_timeout(30);
+    cli_.set_read_timeout(kReadTimeoutS);
   }
   Reply Get(const std::string& path) { return Wrap(cli_.Get(path)); }
   Reply Post(const std::string& path, const json& body) {
     return Wrap(cli_.Post(path, Headers(), body.dump(), "application/json"));
   }
+  // A request the daemon answers only when its work is done (a fit with the instrument response
+  // takes seconds natively, minutes on a large run or a slow machine): a longer wait for it.
+  Reply PostAndWait(const std::string& path, const json& body, int seconds) {
+    cli_.set_read_timeout(seconds);
+    Reply r = Post(path, body);
+    cli_.set_read_timeout(kReadTimeoutS);
+    if (r.status == 0 && r.body == httplib::to_string(httplib::Error::Read))
+      r.body = "no answer within " + std::to_string(seconds) + " s";
+    return r;
+  }
+  static constexpr int kReadTimeoutS = 30;
   Reply Delete(const std::string& path) { return Wrap(cli_.Delete(path, Headers())); }
 
  private:
@@ -344,9 +355,14 @@ json ModelList(const std::string& models) {
   return list;
 }
 
+// How long gonioctl waits for goniod's fit: a large run with the instrument response under a
+// sanitizer took more than the 30 s other requests get (CI: the 10-point run of goniod_test.sh).
+constexpr int kFitWaitS = 600;
+
 int Fit(Ctl& ctl, std::int64_t id, const std::string& models) {
-  return ctl.Print(ctl.api().Post("/api/v1/runs/" + std::to_string(id) + "/fit",
-                                  {{"models", ModelList(models)}}),
+  std::cerr << "fitting run " << id << " (" << models << ") in goniod...\n";
+  return ctl.Print(ctl.api().PostAndWait("/api/v1/runs/" + std::to_string(id) + "/fit",
+                                         {{"models", ModelList(models)}}, kFitWaitS),
                    [&](const json& j) {
                      std::cout << "run " << id << ":\n";
                      for (const json& f : j["fits"]) PrintFit(f);

@@ -13,7 +13,8 @@ for _ in $(seq 100); do [[ -s "$work/port" ]] && break; sleep 0.05; done
 [[ -s "$work/port" ]] || { cat "$work/sim.log"; exit 1; }
 
 # arv-camera-test acquires until stopped and prints a rate line per second.
-timeout 4 stdbuf -oL arv-camera-test-0.8 -n 127.0.0.1 -e 20000 > "$work/arv.log" 2>&1 || true
+# Under ASan the first 512 x 512 frame takes over 2 s to render: a window of 8 s, not 4.
+timeout 8 stdbuf -oL arv-camera-test-0.8 -n 127.0.0.1 -e 20000 > "$work/arv.log" 2>&1 || true
 cat "$work/arv.log"
 grep -q "vendor name *= gonio" "$work/arv.log"
 grep -q "payload *= 524288 bytes" "$work/arv.log"   # 512 x 512 Mono16

@@ -966,6 +966,8 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
     ls.loss = Loss::kNone;
     base = Refit(samples, ls, fit);
   }
+  const char* why = base ? " (the refit with it moved did not converge)"
+                         : " (the unmoved least-squares refit did not converge)";
   if (b.thickness_sigma_mm > 0) {
     const double t = b.thickness_sigma_mm;
     std::optional<double> d;
@@ -977,8 +979,7 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
       note << "; thickness +-" << t << " mm: width +-" << g.width_thickness;
     } else {
       g.left_out = true;
-      note << "; thickness +-" << t
-           << " mm: LEFT OUT of sigma (the refit with it moved did not converge)";
+      note << "; thickness +-" << t << " mm: LEFT OUT of sigma" << why;
     }
   } else {
     note << "; thickness: not stated";
@@ -1010,8 +1011,7 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
       note << "; rectangle +-" << b.rectangle_sigma_px << " px: width +-" << g.width_rectangle;
     } else {
       g.left_out = true;
-      note << "; rectangle +-" << b.rectangle_sigma_px
-           << " px: LEFT OUT of sigma (the refit with it moved did not converge)";
+      note << "; rectangle +-" << b.rectangle_sigma_px << " px: LEFT OUT of sigma" << why;
     }
   } else {
     note << "; rectangle position: not stated";

@@ -80,7 +80,17 @@ Status Engine::MoveTo(const PlannedPoint& p, Measurement* m) {
   std::vector<std::pair<std::string, double>> targets = {{"sample", p.stage.sample_deg},
                                                          {"arm", p.stage.arm_deg}};
   if (HasAxis(stages_, "azimuth")) targets.emplace_back("azimuth", p.stage.azimuth_deg);
+  // The flag leaves the beam with the move (a point's background left it in, or an earlier run
+  // killed during one): the point's own frames must see the source.
+  const bool known_open = flag_open_ && flag_epoch_ == stages_.Reconnections();
+  const bool flag = beam_block_ && !known_open && HasAxis(stages_, "beam_block");
+  if (flag) targets.emplace_back("beam_block", beam_block_->open_deg);
   if (Status s = stages_.MoveTo(targets); !s.ok()) return s;
+  if (flag) {
+    targets.pop_back();  // not read back into the measurement
+    flag_open_ = true;
+    flag_epoch_ = stages_.Reconnections();
+  }
   for (const auto& [name, deg] : targets) {
     auto st = stages_.ReadStatus(name);
     if (!st.ok()) return st.error();
@@ -89,6 +99,16 @@ Status Engine::MoveTo(const PlannedPoint& p, Measurement* m) {
                       : m->azimuth_read_deg) = st->position_deg;
   }
   return OkStatus();
+}
+
+Status Engine::BlockBeam(bool blocked) {
+  if (!beam_block_) return OkStatus();
+  flag_open_ = false;  // until the move is known done
+  Status s =
+      stages_.MoveTo({{"beam_block", blocked ? beam_block_->blocked_deg : beam_block_->open_deg}});
+  flag_open_ = s.ok() && !blocked;
+  flag_epoch_ = stages_.Reconnections();
+  return s;
 }
 
 Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& plan,
@@ -143,7 +163,15 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
 
   // The monitor is read before every frame and after the last: its mean normalises the point,
   // and its spread (flicker the exposures average out but a short reading does not) enters sigma.
-  Exposed e{p, m, RectAccumulator(rect, limit), dark, {}, false};
+  const int background_frames = BackgroundFrames(plan);
+  Exposed e{p,
+            m,
+            RectAccumulator(rect, limit),
+            RectAccumulator(rect, limit),
+            background_frames > 0,
+            dark,
+            {},
+            false};
   for (int k = 0; k < x.frames; ++k) {
     if (Interrupted()) return Error{ErrorCode::kAborted, "interrupted between frames"};
     if (monitor_ != nullptr) {
@@ -162,7 +190,8 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
     stats_.exposure_s += t;
     // The last frame is left to read out while the stages move on. A camera that cannot say
     // when its exposure ends, or a failed Expose (nothing has moved), takes it whole.
-    if (k == x.frames - 1 && camera_.ReportsExposureEnd() && camera_.Expose().ok()) {
+    if (k == x.frames - 1 && !e.background && camera_.ReportsExposureEnd() &&
+        camera_.Expose().ok()) {
       e.in_readout = true;
       ++stats_.overlapped_readouts;
       continue;
@@ -175,6 +204,24 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
     auto w = MonitorW();
     if (!w.ok()) return w.error();
     e.monitor.push_back(*w);
+  }
+  // The background: the same exposure with the beam blocked ahead of the sample. Its last frame
+  // reads out while the stages (and the flag, out of the beam) move on.
+  if (e.background) {
+    if (Status s = BlockBeam(true); !s.ok()) return s.error();
+    for (int k = 0; k < background_frames; ++k) {
+      if (Interrupted()) return Error{ErrorCode::kAborted, "interrupted between frames"};
+      ++stats_.background_frames;
+      stats_.exposure_s += t;
+      if (k == background_frames - 1 && camera_.ReportsExposureEnd() && camera_.Expose().ok()) {
+        e.in_readout = true;
+        ++stats_.overlapped_readouts;
+        continue;
+      }
+      auto f = camera_.Snap();
+      if (!f.ok()) return f.error();
+      e.bg.Add(f->image);
+    }
   }
   auto temp = camera_.TemperatureC();
   if (!temp.ok()) return temp.error();
@@ -219,14 +266,38 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   // One frame gives no variance of its own: use the shot-noise-free floor of the dark's.
   m.pixel_var = acc.frames() >= 2 ? acc.PixelVariance() : dark->pixel_var;
   m.value = (m.rect_mean - dark->mean) / t / norm;
-  const double var_mean = m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) +
-                          dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames));
+  // With a measured background the dark is subtracted from both and cancels: the point's own
+  // frames' noise is all of stat.
+  const double var_mean =
+      m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) +
+      (e.background ? 0.0 : dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames)));
   m.sigma_stat = std::sqrt(var_mean) / (t * norm);
+  double level = dark->mean;  // what the lamp's signal is counted above
+  if (e.background) {
+    const RectAccumulator& b = e.bg;
+    if (b.frames() < 2)
+      return Error{ErrorCode::kDeviceFault, "point " + std::to_string(e.point.index) +
+                                                ": its background has " +
+                                                std::to_string(b.frames()) + " frame(s), not 2"};
+    // Normalised as the point is (by the monitor's readings during its frames), so that the
+    // subtraction is exact for stray light that follows the lamp and the dark cancels.
+    m.background = (b.Mean() - dark->mean) / t / norm;
+    m.value -= *m.background;
+    // Pixel noise, and what moves every pixel together (ambient light, a flickering stray path):
+    // the frames' means' scatter beyond their pixels' noise, pooled over the run's backgrounds
+    // (from successive differences, as the lamp's: a few frames' own would scatter widely).
+    const double pixel = b.PixelVariance() / m.rect_pixels;
+    background_pool_.sum2 += (b.frames() - 1) * (b.FrameMeansVariance() - pixel);
+    background_pool_.weight += b.frames() - 1;
+    const double var_b = (pixel + background_pool_.Variance()) / b.frames();
+    m.sigma_background = std::sqrt(var_b) / (t * norm);
+    level = b.Mean();
+  }
   m.sigma_monitor = std::abs(m.value) * std::sqrt(monitor_rel_var);
   // The lamp between frames: each frame's mean scatters by its pixels' noise / P and by what all
   // pixels share (c s^2 for a relative fluctuation c of the signal s). c is the ratio of the
   // pooled excess to the pooled s^2, by exposure.
-  const double signal = m.rect_mean - dark->mean;
+  const double signal = m.rect_mean - level;
   if (m.frames >= 2) {
     Pool& pool = lamp_pools_[static_cast<std::int64_t>(std::llround(t * 1e6))];
     const double excess = acc.FrameMeansVariance() - m.pixel_var / m.rect_pixels;  // drift-free
@@ -235,7 +306,7 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
     m.sigma_lamp = std::abs(m.value) * std::sqrt(pool.Variance() / m.frames);
   }
   m.sigma = std::sqrt(m.sigma_stat * m.sigma_stat + m.sigma_lamp * m.sigma_lamp +
-                      m.sigma_monitor * m.sigma_monitor);
+                      m.sigma_monitor * m.sigma_monitor + m.sigma_background * m.sigma_background);
   return m;
 }
 
@@ -256,7 +327,7 @@ Result<Measurement> Engine::Complete(Exposed& e) {
   if (e.in_readout) {
     auto f = camera_.Retrieve();
     if (!f.ok()) return f.error();
-    e.acc.Add(f->image);
+    (e.background ? e.bg : e.acc).Add(f->image);
     e.in_readout = false;
   }
   auto m = Reduce(e);
@@ -279,15 +350,18 @@ Result<Measurement> Engine::Retake(Exposed& e, const Error& why) {
                          "readout (" + why.message + "); taken again at the point");
   Measurement back;
   if (Status s = MoveTo(e.point, &back); !s.ok()) return s.error();
+  // A background frame is retaken with the beam blocked again.
+  if (e.background)
+    if (Status s = BlockBeam(true); !s.ok()) return s.error();
   // Nothing else touched the camera since: it is still at the point's exposure.
   auto f = camera_.Snap();
   if (!f.ok()) return f.error();
   ++stats_.retaken_frames;
   stats_.exposure_s += e.m.exposure_s;
   e.m.exposed_s += e.m.exposure_s;
-  e.acc.Add(f->image);
+  (e.background ? e.bg : e.acc).Add(f->image);
   e.in_readout = false;
-  if (monitor_ != nullptr) {
+  if (monitor_ != nullptr && !e.background) {
     auto w = MonitorW();
     if (!w.ok()) return w.error();
     e.monitor.push_back(*w);
@@ -312,6 +386,8 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
 Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
                          const std::function<void(const Progress&)>& progress) {
   run_ = run;
+  beam_block_ = plan.beam_block;
+  flag_open_ = false;  // not known: the run's first move takes it out of the beam
   stale_frames_ = camera_.StaleFrames();  // counted per run
   auto info = db_.GetRun(run);
   if (!info.ok()) return info.error();
@@ -373,6 +449,15 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     return OkStatus();
   };
 
+  // The flag out of the beam when the run ends or pauses on request, so that a live view, or a
+  // program that does not know of it, sees the source; a flag that does not move is logged (the
+  // next run's first move tries again).
+  auto open_flag = [&] {
+    if (BackgroundFrames(plan) == 0) return;
+    if (Status s = BlockBeam(false); !s.ok())
+      (void)db_.AddEvent(run, "beam_block",
+                         "the flag could not leave the beam: " + s.error().ToString());
+  };
   bool moved_back = false;
   for (;;) {  // an adaptive run measures what it chose, then chooses again
     for (const PlannedPoint& p : *pending) {
@@ -380,6 +465,7 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
         if (Status s = settle(&moved_back); !s.ok()) return s;
         (void)db_.AddEvent(run, "paused",
                            "stopped by request before point " + std::to_string(p.index));
+        open_flag();
         return db_.SetRunStatus(run, RunStatus::kPaused);
       }
       Measurement m;
@@ -416,6 +502,7 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     pending = db_.Points(run, /*pending_only=*/true);
     if (!pending.ok()) return pending.error();
   }
+  open_flag();
   return db_.SetRunStatus(run, RunStatus::kDone);
 }
 

@@ -23,7 +23,13 @@
 //            does not average over the rectangle): the frames' means' scatter beyond their
 //            pixels' noise, pooled over the run's points of the same exposure;
 //   monitor  the normalisation: the scatter of single monitor readings, pooled over the run, over
-//            the point's number of readings.
+//            the point's number of readings;
+//   background  with [background] measure = true (plan.h): after the point's frames the beam
+//            block swings into the source beam and frames at the same exposure see the stray
+//            light alone; their mean is subtracted (the dark then cancels and leaves stat) and
+//            its uncertainty is this component: their pixels' noise, plus what moves all pixels
+//            together (the frames' means' scatter beyond it, pooled over the run), over their
+//            number. The flag leaves the beam with the next point's move.
 // Both scatters come from successive differences (von Neumann): a drift of the lamp during the
 // point moves the frames and the readings alike and the normalisation removes it, so the spread
 // about the mean would count it twice as noise (docs/measurement.md).
@@ -62,6 +68,7 @@ struct EngineOptions {
 struct EngineStats {
   int points = 0;
   int frames = 0, ranging_frames = 0, dark_frames = 0;  // frames = the averaged ones
+  int background_frames = 0;                            // with the beam blocked
   int overlapped_readouts = 0;  // last frames read out while the stages moved on
   int retaken_frames = 0;       // of those, frames lost in that readout and taken again
   double exposure_s = 0;        // summed over every frame taken (averaged, ranging, dark)
@@ -108,6 +115,10 @@ class Engine {
     PlannedPoint point;
     Measurement m;  // geometry read back, exposure, ranging, flags, temperature
     RectAccumulator acc;
+    // The frames with the beam blocked, when the plan measures the background (`background`):
+    // then the last frame, and the one in readout, is one of these.
+    RectAccumulator bg;
+    bool background = false;
     const DarkRecord* dark = nullptr;
     std::vector<double> monitor;      // W: before every frame and after the last
     bool in_readout = false;          // the last frame is still to be retrieved
@@ -122,8 +133,11 @@ class Engine {
 
   Status RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
                    const std::function<void(const Progress&)>& progress);
-  // Moves all axes together and reads their positions back into m.
+  // Moves all axes together and reads their positions back into m; the beam block, when the
+  // bench has one, leaves the beam with them.
   Status MoveTo(const PlannedPoint& p, Measurement* m);
+  // The beam block into the beam (true) or out of it; nothing without one.
+  Status BlockBeam(bool blocked);
   // Auto-ranges, darks and exposes the point's frames at the stages' present position.
   Result<Exposed> ExposePoint(const PlannedPoint& p, const Plan& plan, Measurement m);
   // Retrieves the last frame if it is in readout, then reduces and stores the point. A failed
@@ -145,6 +159,11 @@ class Engine {
   Storage& db_;
   EngineOptions o_;
   std::int64_t run_ = 0;
+  std::optional<devices::BeamBlockSettings> beam_block_;  // the run's plan's (the bench's)
+  // The flag known out of the beam: moved there in this run, with the stages' link unbroken since
+  // (a controller that restarted may have lost it).
+  bool flag_open_ = false;
+  int flag_epoch_ = 0;
   int stale_frames_ = 0;  // camera_.StaleFrames() when the last stored point was logged
   std::optional<double> monitor_reference_;
   double last_exposure_s_ = 0;
@@ -159,6 +178,7 @@ class Engine {
   };
   Pool monitor_pool_;                        // of one monitor reading
   std::map<std::int64_t, Pool> lamp_pools_;  // of one frame's common mode, by exposure (us)
+  Pool background_pool_;                     // of one background frame's common mode, absolute
   EngineStats stats_;
 };
 

@@ -155,8 +155,9 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
   Reader r(path);
   Plan p;
   p.path = path;
-  GONIO_TRY(r.Keys(root, "top level",
-                   {"sample", "geometry", "exposure", "darks", "rectangle", "strategy"}));
+  GONIO_TRY(
+      r.Keys(root, "top level",
+             {"sample", "geometry", "exposure", "darks", "rectangle", "strategy", "background"}));
 
   const toml::node* sample = root.get("sample");
   if (sample == nullptr) return r.Fail(nullptr, "the plan names no 'sample'");
@@ -226,6 +227,19 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
         r.Number(*d, "max_temperature_change_c", &p.darks.max_temperature_change_c, 0.01, 20));
   }
   GONIO_TRY(StrategyFrom(r, root, &p));
+  if (const toml::table* b = root["background"].as_table()) {
+    GONIO_TRY(r.Keys(*b, "background", {"measure", "frames"}));
+    GONIO_TRY(r.Bool(*b, "measure", &p.background.measure));
+    std::int64_t frames = p.background.frames;
+    GONIO_TRY(r.Integer(*b, "frames", &frames, 0, 1000));
+    if (frames == 1)
+      return r.Fail(b->get("frames"),
+                    "[background] frames must be 0 (the point's) or at least 2: one frame gives "
+                    "no scatter for the background's sigma");
+    p.background.frames = static_cast<int>(frames);
+  } else if (root.get("background") != nullptr) {
+    return r.Fail(root.get("background"), "[background] must be a table");
+  }
   const toml::table* rect = root["rectangle"].as_table();
   if (rect == nullptr)
     return r.Fail(nullptr,
@@ -257,6 +271,13 @@ Result<Plan> Finish(Reader& r, const toml::table& root, const PlanContext& conte
   if (!context.camera_missing.empty())
     return r.Fail(nullptr,
                   "this instrument cannot measure a run: its camera has " + context.camera_missing);
+  p.beam_block = context.beam_block;
+  if (p.background.measure && !p.beam_block) {
+    const toml::table* b = root["background"].as_table();
+    return r.Fail(b != nullptr && b->get("measure") != nullptr ? b->get("measure") : b,
+                  "[background] measure = true needs a beam block, and this instrument has none "
+                  "(its config has no [beam_block] and no axis \"beam_block\")");
+  }
   const toml::table* g = root["geometry"].as_table();
   // Every incidence must be reachable by the sample axis: a plan that cannot do what it says
   // is refused, not quietly thinned (single view angles beyond reach are only skipped).
@@ -476,18 +497,30 @@ std::vector<PlannedPoint> ExpandGrid(const Plan& plan, const PlanContext& contex
   return out;
 }
 
+namespace {
+
+// A trapezoid: distance / speed + speed / acceleration; 0 for an axis not in `axes`.
+double AxisMoveSeconds(const std::vector<devices::AxisSettings>& axes, const std::string& name,
+                       double a0, double a1) {
+  const devices::AxisSettings* a = Axis(axes, name);
+  if (a == nullptr || a0 == a1) return 0.0;
+  const double d = std::abs(a1 - a0), v = a->speed_deg_s, acc = a->acceleration_deg_s2;
+  return d >= v * v / acc ? d / v + v / acc : 2 * std::sqrt(d / acc);
+}
+
+}  // namespace
+
 double MoveSeconds(const std::vector<devices::AxisSettings>& axes, const StageTargets& from,
                    const StageTargets& to) {
-  // A trapezoid per axis: distance / speed + speed / acceleration; axes move together.
-  auto move_s = [&](const std::string& name, double a0, double a1) {
-    const devices::AxisSettings* a = Axis(axes, name);
-    if (a == nullptr || a0 == a1) return 0.0;
-    const double d = std::abs(a1 - a0), v = a->speed_deg_s, acc = a->acceleration_deg_s2;
-    return d >= v * v / acc ? d / v + v / acc : 2 * std::sqrt(d / acc);
-  };
-  return std::max({move_s("sample", from.sample_deg, to.sample_deg),
-                   move_s("arm", from.arm_deg, to.arm_deg),
-                   move_s("azimuth", from.azimuth_deg, to.azimuth_deg)});
+  // The axes move together: the slowest decides.
+  return std::max({AxisMoveSeconds(axes, "sample", from.sample_deg, to.sample_deg),
+                   AxisMoveSeconds(axes, "arm", from.arm_deg, to.arm_deg),
+                   AxisMoveSeconds(axes, "azimuth", from.azimuth_deg, to.azimuth_deg)});
+}
+
+int BackgroundFrames(const Plan& plan) {
+  if (!plan.background.measure) return 0;
+  return std::max(2, plan.background.frames > 0 ? plan.background.frames : plan.exposure.frames);
 }
 
 std::optional<ExposureHistory::Entry> ExposureHistory::Near(const PlannedPoint& p) const {
@@ -525,8 +558,17 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
   };
   StageTargets at{0, 180, 0};
   double last_s = 0;  // the engine starts each point at the previous point's exposure
+  // A measured background: its frames at the point's exposure, and the flag's move into the beam
+  // (its move out goes with the next point's).
+  const int background_frames = BackgroundFrames(plan);
+  const double flag_s = background_frames > 0 && plan.beam_block
+                            ? AxisMoveSeconds(axes, "beam_block", plan.beam_block->open_deg,
+                                              plan.beam_block->blocked_deg)
+                            : 0.0;
   for (const PlannedPoint& p : points) {
     if (p.skipped) continue;
+    e.motion_s += flag_s;
+    clock += flag_s;
     const double move = MoveSeconds(axes, at, p.stage);
     e.motion_s += move;
     clock += move;
@@ -542,7 +584,7 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
       // The last ranging try is the first averaged frame; earlier tries priced at its exposure.
       ++e.from_history;
       e.ranging_frames += seen.ranging_tries - 1;
-      expose(seen.exposure_s, plan.exposure.frames + seen.ranging_tries - 1);
+      expose(seen.exposure_s, plan.exposure.frames + seen.ranging_tries - 1 + background_frames);
       dark_for(seen.exposure_s);
       last_s = seen.exposure_s;
     } else if (forecast_it) {
@@ -562,12 +604,13 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
         ++e.ranging_frames;
         t = j.next_s;
       }
-      expose(t, plan.exposure.frames - 1);
+      expose(t, plan.exposure.frames - 1 + background_frames);
       last_s = t;
     } else {
       ++e.from_typical;
       ++e.ranging_frames;
-      expose(typical_exposure_s, plan.exposure.frames + 1);  // +1: the ranging frame
+      // +1: the ranging frame
+      expose(typical_exposure_s, plan.exposure.frames + 1 + background_frames);
     }
   }
   if (parts != nullptr) *parts = e;

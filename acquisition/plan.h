@@ -46,6 +46,17 @@ struct DarkPolicy {
   double max_temperature_change_c = 0.5;
 };
 
+// [background]: each point's stray-light background measured on the bench's beam block
+// (devices::BeamBlockSettings): after the point's frames, the flag swings into the source beam
+// ahead of the sample and `frames` more frames at the point's exposure see everything but the
+// light the sample scatters; their mean is subtracted from the point's value and its
+// uncertainty enters the point's sigma (docs/measurement.md). A plan that asks for it on a bench
+// without a beam block is refused.
+struct BackgroundPolicy {
+  bool measure = false;
+  int frames = 0;  // 0: as many as the point's (ExposurePolicy::frames, at least 2)
+};
+
 struct Rectangle {
   int x = 0, y = 0, width = 0, height = 0;  // image pixels
 };
@@ -116,6 +127,10 @@ struct Plan {
   ExposurePolicy exposure;
   DarkPolicy darks;
   StrategyPolicy strategy;
+  BackgroundPolicy background;
+  // The instrument's beam block (PlanContext::beam_block), whether or not the plan measures
+  // backgrounds: the engine keeps the flag out of the beam for the point's own frames.
+  std::optional<devices::BeamBlockSettings> beam_block;
   Rectangle rectangle;
   std::optional<AutoRectangle> auto_rectangle;  // when the plan chose it: how
   std::string rectangle_reason;                 // which rectangle, and why (auto only)
@@ -129,6 +144,9 @@ struct PlanContext {
   // What a run needs of the camera: every point records the sensor temperature, and darks need
   // the shutter. A plan for a camera without either is refused (naming what is missing).
   std::string camera_missing;  // "" when the camera has both
+  // The bench's beam block ([beam_block] in the instrument config); nullopt: none, and a plan
+  // with [background] measure = true is refused.
+  std::optional<devices::BeamBlockSettings> beam_block;
   // The bench's optics and the camera's region (the rectangle is the plan's), for plans whose
   // rectangle is chosen by the response ([rectangle] auto); nullopt: the config has no [bench].
   std::optional<fitting::ResponseSetup> response;
@@ -170,6 +188,9 @@ struct ExposureHistory {
   std::optional<Entry> Near(const PlannedPoint& p) const;
 };
 
+// The frames a point's background takes (0 when the plan measures none).
+int BackgroundFrames(const Plan& plan);
+
 // Seconds the stages take from one position to the next: a trapezoid per axis at its configured
 // speed and acceleration, all axes together (the slowest decides); axes not in `axes`: none.
 double MoveSeconds(const std::vector<devices::AxisSettings>& axes, const StageTargets& from,
@@ -187,7 +208,8 @@ struct EstimateParts {
 
 // Seconds of bench time the run should take: moves along the order at the axes' speeds plus, per
 // point, its frames, ranging tries and the darks the engine takes at each exposure it tries
-// (reused while fresh, DarkPolicy::max_age_s). Each point is priced, in this order, at:
+// (reused while fresh, DarkPolicy::max_age_s), and its background's frames and the beam block's
+// move when the plan measures backgrounds. Each point is priced, in this order, at:
 //   - the exposure and ranging tries of the nearest point of `history` (an earlier run of the
 //     specimen);
 //   - the engine's own ranging (JudgeExposure) played on `forecast`'s expected brightness (the

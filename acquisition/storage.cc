@@ -105,6 +105,13 @@ ALTER TABLE measurements ADD COLUMN exposed_s REAL;
 ALTER TABLE plan_points ADD COLUMN planned_exposure_s REAL;
 ALTER TABLE plan_points ADD COLUMN predicted_s REAL;
 )sql",
+    // 7: measured backgrounds (#16 item 3): the stray light seen with the beam blocked, already
+    // subtracted from value, and its uncertainty, a component of sigma. NULL where none was
+    // measured.
+    R"sql(
+ALTER TABLE measurements ADD COLUMN background REAL;
+ALTER TABLE measurements ADD COLUMN sigma_background REAL;
+)sql",
 };
 constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
 static_assert(kMigrationCount == kSchemaVersion);
@@ -446,8 +453,8 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
          "INSERT INTO measurements(run_id, idx, sample_read_deg, arm_read_deg, azimuth_read_deg, "
          "exposure_s, frames, temperature_c, monitor_w, rect_mean, rect_sd, pixel_var, "
          "rect_pixels, rect_saturated, dark_id, value, sigma, flags, ranging_tries, sigma_stat, "
-         "sigma_lamp, sigma_monitor, exposed_s) "
-         "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
+         "sigma_lamp, sigma_monitor, exposed_s, background, sigma_background) "
+         "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
   i.Bind(1, run).Bind(2, m.index).Bind(3, m.sample_read_deg).Bind(4, m.arm_read_deg);
   i.Bind(5, m.azimuth_read_deg).Bind(6, m.exposure_s).Bind(7, m.frames).Bind(8, m.temperature_c);
   i.Bind(9, m.monitor_w).Bind(10, m.rect_mean).Bind(11, m.rect_sd).Bind(12, m.pixel_var);
@@ -461,6 +468,8 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
   i.Bind(17, m.sigma).Bind(18, m.flags).Bind(19, m.ranging_tries);
   i.Bind(20, m.sigma_stat).Bind(21, m.sigma_lamp).Bind(22, m.sigma_monitor);
   i.Bind(23, m.exposed_s);
+  i.Bind(24, m.background);
+  i.Bind(25, m.background ? std::optional<double>(m.sigma_background) : std::nullopt);
   if (i.Step() != SQLITE_DONE)
     return fail(
         i.Fail("storing point " + std::to_string(m.index) + " of run " + std::to_string(run)));
@@ -481,7 +490,7 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
          "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
          "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries, "
          "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor, m.exposed_s, p.planned_exposure_s, "
-         "p.predicted_s, d.rect_mean FROM measurements m "
+         "p.predicted_s, d.rect_mean, m.background, m.sigma_background FROM measurements m "
          "JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
          "LEFT JOIN darks d ON d.id=m.dark_id "
          "WHERE m.run_id=? ORDER BY p.idx");
@@ -521,6 +530,8 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
     if (!q.Null(29)) r.point.planned_exposure_s = q.D(29);
     r.point.predicted_s = q.Null(30) ? 0 : q.D(30);
     if (!q.Null(31)) r.dark_rect_mean = q.D(31);
+    if (!q.Null(32)) r.m.background = q.D(32);
+    r.m.sigma_background = q.Null(33) ? 0 : q.D(33);
     out.push_back(r);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading measurements");
@@ -642,12 +653,14 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
   if (!rows.ok()) return rows.error();
   auto info = GetRun(run);
   if (!info.ok()) return info.error();
-  out << "# run " << run << ": dark-subtracted, monitor-normalised counts per second\n";
+  out << "# run " << run
+      << ": dark-subtracted, monitor-normalised counts per second (background-subtracted where "
+         "the background column is set)\n";
   // The instrument response's setup (fitting/samples_csv.h reads it back with the stage columns).
   if (info->response) out << "# response: " << *info->response << "\n";
   out << "theta_l_deg,theta_v_deg,phi_l_deg,phi_v_deg,value,sigma,exposure_s,frames,"
          "rect_mean_adu,temperature_c,monitor_w,flags,side,sample_read_deg,arm_read_deg,"
-         "azimuth_read_deg,sigma_stat,sigma_lamp,sigma_monitor\n";
+         "azimuth_read_deg,sigma_stat,sigma_lamp,sigma_monitor,background,sigma_background\n";
   out.precision(9);
   for (const MeasurementRow& r : *rows) {
     out << r.point.theta_l_deg << "," << r.point.theta_v_deg << "," << r.point.phi_deg << ","
@@ -656,7 +669,13 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
         << (r.m.monitor_w ? std::to_string(*r.m.monitor_w) : "") << "," << r.m.flags << ","
         << (r.point.reflection ? "reflection" : "transmission") << "," << r.m.sample_read_deg << ","
         << r.m.arm_read_deg << "," << r.m.azimuth_read_deg << "," << r.m.sigma_stat << ","
-        << r.m.sigma_lamp << "," << r.m.sigma_monitor << "\n";
+        << r.m.sigma_lamp << "," << r.m.sigma_monitor << ",";
+    // Empty where no background was measured (the fitter may then fit a floor).
+    if (r.m.background)
+      out << *r.m.background << "," << r.m.sigma_background;
+    else
+      out << ",";
+    out << "\n";
   }
   return OkStatus();
 }

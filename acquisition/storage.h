@@ -22,7 +22,7 @@ struct sqlite3;
 
 namespace gonio::acquisition {
 
-inline constexpr int kSchemaVersion = 6;
+inline constexpr int kSchemaVersion = 7;
 
 // A run's status, stored as text ("planned", "running", ...) and turned into a string only where
 // it is stored or sent.
@@ -82,10 +82,16 @@ struct Measurement {
   double pixel_var = 0;  // pooled per-pixel variance between frames, ADU^2 (common mode out)
   int rect_pixels = 0, rect_saturated = 0;
   std::int64_t dark_id = 0;
-  double value = 0, sigma = 0;  // dark-subtracted, normalised counts per second
+  // Dark-subtracted (background-subtracted when `background` is set), normalised counts per
+  // second.
+  double value = 0, sigma = 0;
   // sigma's components, added in quadrature (docs/measurement.md): shot, read and dark noise;
-  // the lamp's fluctuation between the point's frames; the monitor normalisation.
-  double sigma_stat = 0, sigma_lamp = 0, sigma_monitor = 0;
+  // the lamp's fluctuation between the point's frames; the monitor normalisation; the measured
+  // background's own uncertainty (0 when none was measured).
+  double sigma_stat = 0, sigma_lamp = 0, sigma_monitor = 0, sigma_background = 0;
+  // The stray-light background measured with the beam blocked ([background] plans), in value's
+  // units, already subtracted from value; nullopt when the plan measured none.
+  std::optional<double> background;
   int flags = 0;  // kFlag*
   int ranging_tries = 0;
   // Bench seconds of exposure the point took: its ranging tries, averaged frames, retakes and

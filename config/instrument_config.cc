@@ -1,5 +1,7 @@
 #include "config/instrument_config.h"
 
+#include <cmath>
+
 #include "config/toml_reader.h"
 
 namespace gonio::config {
@@ -115,7 +117,7 @@ Status ReadAxes(Reader& r, const toml::node& n, std::vector<devices::AxisSetting
                       "tolerance_deg", "move_timeout_s", "home_timeout_s"}));
     devices::AxisSettings ax;
     if (a->get("name") == nullptr) return r.Fail(&item, "axis without 'name'");
-    GONIO_TRY(r.String(*a, "name", &ax.name, {"arm", "azimuth", "sample"}));
+    GONIO_TRY(r.String(*a, "name", &ax.name, {"arm", "azimuth", "beam_block", "sample"}));
     if (!names.insert(ax.name).second)
       return r.Fail(a->get("name"), "axis '" + ax.name + "' configured twice");
     std::int64_t id = static_cast<std::int64_t>(names.size());
@@ -186,6 +188,24 @@ Status ReadMonitor(Reader& r, const toml::table& t, MonitorConfig& m) {
   return OkStatus();
 }
 
+// [beam_block]: the flag's two positions, within its axis's travel limits.
+Status ReadBeamBlock(Reader& r, const toml::table& t, const InstrumentConfig& c,
+                     devices::BeamBlockSettings& b) {
+  GONIO_TRY(r.Keys(t, "beam_block", {"open_deg", "blocked_deg"}));
+  const devices::AxisSettings* axis = nullptr;
+  for (const auto& a : c.axes)
+    if (a.name == "beam_block") axis = &a;
+  if (axis == nullptr)
+    return r.Fail(&t, "[beam_block] needs an axis named \"beam_block\" in [[stages.axis]]");
+  for (const char* key : {"open_deg", "blocked_deg"})
+    if (t.get(key) == nullptr) return r.Fail(&t, std::string("[beam_block] needs '") + key + "'");
+  GONIO_TRY(r.Number(t, "open_deg", &b.open_deg, axis->min_deg, axis->max_deg));
+  GONIO_TRY(r.Number(t, "blocked_deg", &b.blocked_deg, axis->min_deg, axis->max_deg));
+  if (std::abs(b.open_deg - b.blocked_deg) < 1)
+    return r.Fail(t.get("blocked_deg"), "blocked_deg must be at least 1 deg from open_deg");
+  return OkStatus();
+}
+
 // [bench]: the optics' geometry (docs/measurement.md).
 Status ReadBench(Reader& r, const toml::table& t, fitting::BenchOptics& b) {
   GONIO_TRY(r.Keys(t, "bench",
@@ -219,11 +239,22 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   const toml::table& root = *parsed;
   Reader r(path);
   InstrumentConfig c;
-  GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor", "bench"}));
+  GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor", "beam_block", "bench"}));
   if (const toml::table* t = root["camera"].as_table()) GONIO_TRY(ReadCamera(r, *t, c));
   if (const toml::table* t = root["stages"].as_table()) GONIO_TRY(ReadStages(r, *t, c));
   if (c.axes.empty()) return r.Fail(nullptr, "no [[stages.axis]]: the instrument needs its axes");
   if (const toml::table* t = root["monitor"].as_table()) GONIO_TRY(ReadMonitor(r, *t, c.monitor));
+  if (const toml::table* t = root["beam_block"].as_table()) {
+    c.beam_block.emplace();
+    GONIO_TRY(ReadBeamBlock(r, *t, c, *c.beam_block));
+  } else if (root.get("beam_block") != nullptr) {
+    return r.Fail(root.get("beam_block"), "[beam_block] must be a table");
+  } else {
+    for (const auto& a : c.axes)
+      if (a.name == "beam_block")
+        return r.Fail(nullptr,
+                      "the axis \"beam_block\" needs a [beam_block] table (open_deg, blocked_deg)");
+  }
   if (const toml::table* t = root["bench"].as_table()) {
     c.bench.emplace();
     GONIO_TRY(ReadBench(r, *t, *c.bench));

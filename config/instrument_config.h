@@ -38,6 +38,9 @@ struct InstrumentConfig {
   devices::StageRegisterProfile registers;
   std::vector<devices::AxisSettings> axes;
   MonitorConfig monitor;
+  // [beam_block]: where the flag of the axis named "beam_block" is open and where it blocks the
+  // source beam; nullopt: the bench has no beam block (no measured backgrounds).
+  std::optional<devices::BeamBlockSettings> beam_block;
   // [bench]: the optics' geometry that each point's instrument response is computed from
   // (fitting/response.h). Absent: runs carry no response and are fitted with the point model.
   std::optional<fitting::BenchOptics> bench;

@@ -76,6 +76,14 @@ struct ModbusLink {
   double poll_interval_s = 0;
 };
 
+// A beam block: a flag on a rotation stage (the axis named "beam_block") that swings into the
+// source beam ahead of the sample, so that a frame sees everything but the light the sample
+// scatters: the stray-light background of a point (acquisition's [background] plans).
+struct BeamBlockSettings {
+  double open_deg = 0;      // the flag out of the beam
+  double blocked_deg = 90;  // the flag in the beam
+};
+
 struct AxisStatus {
   double position_deg = 0;   // the feedback (encoder) position
   double commanded_deg = 0;  // where the controller commands it

@@ -791,10 +791,18 @@ namespace {
 // BIC's choice between them.
 Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const FitOptions& o) {
   if (o.floor != Floor::kAuto) return FitOnce(samples, o);
-  // The floor only when the data need it: BIC with it lower by more than 2.
   FitOptions off = o, on = o;
   off.floor = Floor::kOff;
   on.floor = Floor::kFit;
+  // A background measured at every point and subtracted leaves nothing for a floor to stand for.
+  if (std::all_of(samples.begin(), samples.end(),
+                  [](const Sample& s) { return s.background_subtracted; })) {
+    auto fit = FitOnce(samples, off);
+    if (fit.ok())
+      fit->floor_choice = "no floor: each point's background was measured and subtracted";
+    return fit;
+  }
+  // The floor only when the data need it: BIC with it lower by more than 2.
   auto without = FitOnce(samples, off);
   if (!without.ok()) return without;
   if (static_cast<int>(samples.size()) < on.NumParams() + 1) {

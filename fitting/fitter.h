@@ -41,7 +41,8 @@ namespace gonio::fitting {
 enum class Loss { kNone, kHuber, kCauchy };
 // A constant floor b added to the model, S = k f cos + b: the stray light no background
 // measurement removed. kAuto fits with and without it and keeps it only when BIC prefers it by
-// more than 2 (positive evidence, Kass & Raftery 1995): "a floor the data need".
+// more than 2 (positive evidence, Kass & Raftery 1995): "a floor the data need"; on samples whose
+// background was each measured and subtracted (Sample::background_subtracted) it fits none.
 enum class Floor { kOff, kFit, kAuto };
 enum class Derivatives { kAutomatic, kNumeric };
 

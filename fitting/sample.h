@@ -26,6 +26,9 @@ struct Sample {
   // The statistical part of sigma (shot, read and dark noise), when the bench's budget gives it
   // (acquisition: sigma_stat); 0 when unknown. The fitter splits each parameter's sigma by it.
   double sigma_stat = 0;
+  // The bench measured this point's stray-light background (the beam blocked) and subtracted
+  // it, with its uncertainty in sigma: no floor stands in for it (Floor::kAuto fits none).
+  bool background_subtracted = false;
   int line = 0;  // where it came from (file line), 0 when not from a file
   // The instrument response (response.h), when the sample came from a run of a bench whose
   // geometry is known; absent for synthetic or bare CSV samples (the point model then).

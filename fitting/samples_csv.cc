@@ -113,6 +113,13 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
                           : SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);
     s.line = line_no;
     if (Status st = number("sigma_stat", 0, &s.sigma_stat); !st) return st.error();
+    // An export's background column: set where the point's background was measured (and is
+    // already subtracted from value), empty where none was.
+    if (auto it = column.find("background"); it != column.end() && !fields[it->second].empty()) {
+      double background = 0;
+      if (Status st = number("background", 0, &background); !st) return st.error();
+      s.background_subtracted = true;
+    }
     if (setup) {
       if (!column.count("sample_read_deg") || !column.count("arm_read_deg"))
         return InvalidArgument(where() +

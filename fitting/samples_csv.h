@@ -11,6 +11,10 @@
 //                                            sample's stage position, so that it carries its
 //                                            instrument response (response.h)
 //   sigma_stat                               optional: sigma's statistical part (an export's)
+//   background                               optional: the stray-light background measured at
+//                                            the point and already subtracted from value (an
+//                                            export's; empty where none was): no floor is fitted
+//                                            to rows that all have one
 // Other columns are ignored. Blank lines and other lines starting with '#' are skipped.
 // Every error names file:line and the column; nothing is guessed.
 #pragma once

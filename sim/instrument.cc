@@ -93,6 +93,8 @@ config::InstrumentConfig Instrument::ClientConfig() const {
     s.min_deg = std::min(lo, hi);
     s.max_deg = std::max(lo, hi);
     c.axes.push_back(s);
+    // The flag covers the beam from 45 to 135 deg (sim_config.h): out at 0, in at 90.
+    if (a.role == "beam_block") c.beam_block = devices::BeamBlockSettings{0, 90};
   }
   c.monitor.enabled = monitor_ != nullptr;
   c.monitor.transport = "socket";

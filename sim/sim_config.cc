@@ -14,6 +14,12 @@ using config::Reader;
 SimConfig DefaultSimConfig() {
   SimConfig c;
   c.axes = {{"sample", 1000, 0, {}}, {"arm", 1000, 180, {}}, {"azimuth", 1000, 0, {}}};
+  // The beam block's flag (config/sim.toml's fourth axis): 0 to 180 deg.
+  AxisConfig flag{
+      .role = "beam_block", .steps_per_degree = 100, .degrees_at_zero = 0, .options = {}};
+  flag.options.min_steps = 0;
+  flag.options.max_steps = 18'000;
+  c.axes.push_back(flag);
   return c;
 }
 
@@ -24,6 +30,8 @@ StageAngles AnglesFromSteps(const std::vector<AxisConfig>& axes, const std::vect
     if (axes[k].role == "sample") a.sample_deg = deg;
     if (axes[k].role == "arm") a.arm_deg = deg;
     if (axes[k].role == "azimuth") a.azimuth_deg = deg;
+    // The flag swings into the beam at 90 deg; it covers the beam from 45 to 135 deg.
+    if (axes[k].role == "beam_block") a.beam_blocked = deg >= 45 && deg <= 135;
   }
   return a;
 }
@@ -59,7 +67,7 @@ Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::str
                     "settle_s", "limit_switches", "limit_min_steps", "limit_max_steps",
                     "backlash_steps", "latched_inputs", "ready_delay_s", "stall_alarm"}));
   if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
-  GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth"}));
+  GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth", "beam_block"}));
   if (!roles.insert(ax.role).second) {
     return r.Fail(a->get("role"), "role '" + ax.role + "' given to two axes");
   }

@@ -20,7 +20,9 @@ namespace gonio::sim {
 // One rotation stage: its role in the scene and its gearing (what the daemon's config must
 // mirror for the same motor). Angle (deg) = degrees_at_zero + steps / steps_per_degree.
 struct AxisConfig {
-  std::string role;  // "sample", "arm" or "azimuth"; unit id = position in the file + 1
+  // "sample", "arm", "azimuth" or "beam_block" (a flag that covers the source beam ahead of the
+  // sample from 45 to 135 deg, for stray-light backgrounds); unit id = position in the file + 1
+  std::string role;
   double steps_per_degree = 1000;
   double degrees_at_zero = 0;
   AxisOptions options;
@@ -47,8 +49,8 @@ struct SimConfig {
   LampOptions lamp;
 };
 
-// The defaults when no file is given: three axes (sample, arm at 180 deg, azimuth), the camera,
-// ground glass.
+// The defaults when no file is given: four axes (sample, arm at 180 deg, azimuth, the beam
+// block's flag), the camera, ground glass.
 SimConfig DefaultSimConfig();
 // The two-axis bench that tests and benchmarks start in-process (sim/instrument.h): the sample
 // axis (-90..90 deg) and the arm (0..360 deg, 180 at zero steps), 1000 steps per degree, the

@@ -511,18 +511,21 @@ void ApiServer::RouteRuns() {
     o["plan"] = info->plan_text;
     json ms = json::array();
     for (const auto& r : *rows)
-      ms.push_back({{"index", r.point.index},
-                    {"theta_l_deg", r.point.theta_l_deg},
-                    {"theta_v_deg", r.point.theta_v_deg},
-                    {"phi_deg", r.point.phi_deg},
-                    {"side", r.point.reflection ? "reflection" : "transmission"},
-                    {"value", r.m.value},
-                    {"sigma", r.m.sigma},
-                    {"exposure_s", r.m.exposure_s},
-                    {"frames", r.m.frames},
-                    {"temperature_c", r.m.temperature_c},
-                    {"monitor_w", r.m.monitor_w ? json(*r.m.monitor_w) : json(nullptr)},
-                    {"flags", r.m.flags}});
+      ms.push_back(
+          {{"index", r.point.index},
+           {"theta_l_deg", r.point.theta_l_deg},
+           {"theta_v_deg", r.point.theta_v_deg},
+           {"phi_deg", r.point.phi_deg},
+           {"side", r.point.reflection ? "reflection" : "transmission"},
+           {"value", r.m.value},
+           {"sigma", r.m.sigma},
+           {"exposure_s", r.m.exposure_s},
+           {"frames", r.m.frames},
+           {"temperature_c", r.m.temperature_c},
+           {"monitor_w", r.m.monitor_w ? json(*r.m.monitor_w) : json(nullptr)},
+           {"background", r.m.background ? json(*r.m.background) : json(nullptr)},
+           {"sigma_background", r.m.background ? json(r.m.sigma_background) : json(nullptr)},
+           {"flags", r.m.flags}});
     o["measurements"] = ms;
     auto events = reader_->Events(info->id);
     if (!events.ok()) return ReplyError(res, events.error());

@@ -47,6 +47,7 @@ acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
   acquisition::PlanContext ctx;
   ctx.specimens = std::move(specimens);
   ctx.axes = c.axes;
+  ctx.beam_block = c.beam_block;
   if (c.bench) {
     fitting::ResponseSetup s;
     s.bench = *c.bench;

@@ -38,6 +38,7 @@ Result<std::vector<fitting::Sample>> RunSamples(acquisition::Storage& db, std::i
                          r.m.value, r.m.sigma);
     s.line = r.point.index;
     s.sigma_stat = r.m.sigma_stat;
+    s.background_subtracted = r.m.background.has_value();
     if (setup)
       s.response = fitting::PointResponse{
           setup, {r.m.sample_read_deg, r.m.arm_read_deg, r.m.azimuth_read_deg}};
@@ -60,7 +61,8 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
   fitting::ProtocolOptions po;
   po.models = *specs;
   po.base.eta = info->specimen_eta;
-  po.base.floor = fitting::Floor::kAuto;  // no background is measured: a floor only if needed
+  // A floor only if the data need it; none where each point's background was measured.
+  po.base.floor = fitting::Floor::kAuto;
   if (Status v = fitting::ValidateSamples(samples, po.base.NumParams(),
                                           "run " + std::to_string(run) + " point");
       !v.ok())

@@ -126,10 +126,14 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
       outage_since = -1;
       outage.clear();
     }
+    char background[64] = "";
+    if (p.last.background)
+      std::snprintf(background, sizeof background, "  (background %.3g subtracted)",
+                    *p.last.background);
     std::printf(
-        "[%4d/%d] theta_l %5.1f theta_v %6.1f  exposure %-9.4g s  value %.5g +- %.2g  ETA %s\n",
+        "[%4d/%d] theta_l %5.1f theta_v %6.1f  exposure %-9.4g s  value %.5g +- %.2g%s  ETA %s\n",
         p.done, p.total, p.point.theta_l_deg, p.point.theta_v_deg, p.last.exposure_s, p.last.value,
-        p.last.sigma, Duration(p.eta_s).c_str());
+        p.last.sigma, background, Duration(p.eta_s).c_str());
     std::fflush(stdout);
   };
   for (;;) {

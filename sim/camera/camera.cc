@@ -22,7 +22,8 @@ constexpr std::uint32_t kFakeAcquisition = ARV_FAKE_CAMERA_REGISTER_ACQUISITION;
 constexpr std::uint32_t kFakeAcquisitionMode = ARV_FAKE_CAMERA_REGISTER_ACQUISITION_MODE;
 
 bool SameAngles(const StageAngles& a, const StageAngles& b) {
-  return a.sample_deg == b.sample_deg && a.arm_deg == b.arm_deg && a.azimuth_deg == b.azimuth_deg;
+  return a.sample_deg == b.sample_deg && a.arm_deg == b.arm_deg && a.azimuth_deg == b.azimuth_deg &&
+         a.beam_blocked == b.beam_blocked;
 }
 
 void WriteString(ArvFakeCamera* fake, std::uint32_t address, std::size_t size,

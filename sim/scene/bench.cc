@@ -53,6 +53,7 @@ NominalGeometry Nominal(const BenchGeometry& bench, const StageAngles& angles) {
   g.transmission = g.v.z < 0;
   const double separation = std::acos(std::clamp(Dot(f.source_dir, f.camera_dir), -1.0, 1.0));
   g.arm_shadows_source = separation < bench.arm_shadow_half_angle_deg * kDeg;
+  g.source_hidden = g.arm_shadows_source || angles.beam_blocked;
   return g;
 }
 
@@ -135,7 +136,7 @@ std::optional<PixelRay> Scene::TraceReflection(const V& source_dir, double phi, 
 
 int Scene::AperturePoints(const StageAngles& angles) const {
   const NominalGeometry g = Nominal(bench_, angles);
-  if (g.arm_shadows_source || !g.transmission || g.l.z <= 0) return 0;
+  if (g.source_hidden || !g.transmission || g.l.z <= 0) return 0;
   const ApertureDecision d =
       ApertureMatters(*truth_, g.l, g.v, o_.apertures, o_.aperture_tolerance);
   if (!d.matters) return 0;
@@ -172,14 +173,14 @@ double Scene::RateAt(const StageAngles& angles, double x_mm, double y_mm, bool s
 
 double Scene::PixelRate(const StageAngles& angles, const ImageRegion& region, int col,
                         int row) const {
-  const bool shadowed = Nominal(bench_, angles).arm_shadows_source;
+  const bool shadowed = Nominal(bench_, angles).source_hidden;
   const auto [x, y] = ObjectPointMm(region, col, row);
   return RateAt(angles, x, y, shadowed, AperturePoints(angles));
 }
 
 cv::Mat1d Scene::Render(const StageAngles& angles, const ImageRegion& region) const {
   cv::Mat1d out(region.height, region.width, 0.0);
-  const bool shadowed = Nominal(bench_, angles).arm_shadows_source;
+  const bool shadowed = Nominal(bench_, angles).source_hidden;
   const int points = AperturePoints(angles);
   // A wide lobe's aperture factor (averaged / point value) varies slowly across the image: it is
   // computed at every 8th sensor pixel and interpolated, which makes a frame 20 times cheaper

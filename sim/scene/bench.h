@@ -57,6 +57,9 @@ struct StageAngles {
   double sample_deg = 0;   // sample rotation: the incidence angle
   double arm_deg = 180;    // detector arm, lab angle; 180 = straight through at normal incidence
   double azimuth_deg = 0;  // optional third axis, about the sample normal
+  // The beam block (an axis of role "beam_block": a flag on a small rotation stage ahead of the
+  // sample) is in the source beam: no source light reaches the sample, stray light remains.
+  bool beam_blocked = false;
 };
 
 // The directions at the sample for the nominal rays (through O), in the sample frame.
@@ -64,6 +67,8 @@ struct NominalGeometry {
   optics::Vec3<double> l, v;  // toward the source; toward the camera
   bool transmission = false;  // camera on the glass side (v.z < 0)
   bool arm_shadows_source = false;
+  // No source light reaches the sample: the arm shadows it, or the beam block is in the beam.
+  bool source_hidden = false;
 };
 NominalGeometry Nominal(const BenchGeometry& bench, const StageAngles& angles);
 

@@ -2,8 +2,11 @@
 // point order is a serpentine; unreachable geometries are skipped with a reason.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <sstream>
 #include <string>
 
 #include "acquisition/exposure.h"
@@ -272,6 +275,54 @@ TEST(Plan, EstimateGrowsWithExposureAndMotion) {
   // 10 points of (4 frames + 1 ranging frame): 5 * 0.99 s more each.
   EXPECT_NEAR(slow - fast, 10 * 5 * 0.99, 1e-9);
   EXPECT_GT(fast, 10 * 5 * 0.01);  // the motion adds to the exposures
+}
+
+// Issue #16 item 3: a plan may measure each point's background with the beam block. It is refused,
+// by file:line, on a bench without one and for a single frame (no scatter for its sigma); with
+// one it takes the bench's flag, and each point's estimate gains its background frames (the
+// plan's, else the point's) and the flag's move in.
+TEST(Plan, AMeasuredBackgroundNeedsABeamBlockAndIsPricedInTheEstimate) {
+  std::ifstream in(kData + "/plans/good.toml");
+  std::stringstream good;
+  good << in.rdbuf();
+  const std::string with_background = good.str() + "\n[background]\nmeasure = true\n";
+  auto refused = LoadPlanText(with_background, "bg.toml", Context());
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.error().message.find(
+                "bg.toml:" +
+                std::to_string(std::count(with_background.begin(), with_background.end(), '\n')) +
+                ": [background] measure = true needs a beam block"),
+            std::string::npos)
+      << refused.error().message;
+
+  PlanContext ctx = Context();
+  devices::AxisSettings flag{.name = "beam_block", .slave_id = 4};
+  flag.min_deg = 0, flag.max_deg = 180, flag.speed_deg_s = 90, flag.acceleration_deg_s2 = 900;
+  ctx.axes.push_back(flag);
+  ctx.beam_block = devices::BeamBlockSettings{0, 90};
+  auto one = LoadPlanText(with_background + "frames = 1\n", "one.toml", ctx);
+  ASSERT_FALSE(one.ok());
+  EXPECT_NE(one.error().message.find("one.toml:"), std::string::npos);
+  EXPECT_NE(one.error().message.find("at least 2"), std::string::npos) << one.error().message;
+
+  auto plain = LoadPlanText(good.str(), "plain.toml", ctx);
+  auto measured = LoadPlanText(with_background, "bg.toml", ctx);
+  auto six = LoadPlanText(with_background + "frames = 6\n", "six.toml", ctx);
+  ASSERT_TRUE(plain.ok() && measured.ok() && six.ok());
+  EXPECT_TRUE(plain->beam_block.has_value());  // the engine keeps the flag out either way
+  EXPECT_FALSE(plain->background.measure);
+  EXPECT_EQ(BackgroundFrames(*plain), 0);
+  EXPECT_EQ(BackgroundFrames(*measured), plain->exposure.frames);
+  EXPECT_EQ(BackgroundFrames(*six), 6);
+  const auto points = ExpandPoints(*plain, ctx);
+  const int n = static_cast<int>(std::count_if(points.begin(), points.end(),
+                                               [](const PlannedPoint& p) { return !p.skipped; }));
+  const double t = 0.5;  // every point at this exposure (no history, no forecast)
+  const double base = EstimateSeconds(*plain, points, ctx.axes, t);
+  // The flag's 90 deg at 90 deg/s, 900 deg/s^2: 1 s + 0.1 s, per point.
+  EXPECT_NEAR(EstimateSeconds(*measured, points, ctx.axes, t) - base,
+              n * (plain->exposure.frames * t + 1.1), 1e-9);
+  EXPECT_NEAR(EstimateSeconds(*six, points, ctx.axes, t) - base, n * (6 * t + 1.1), 1e-9);
 }
 
 // Issue #17: before any run of the specimen, each point is priced by the engine's ranging played

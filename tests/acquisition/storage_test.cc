@@ -6,6 +6,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <sstream>
 #include <string>
 
 #include "acquisition/storage.h"
@@ -92,7 +93,7 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
   // Back to version 1: without the jobs (2), the points' side (3), the runs' response and the
   // points' budget (4), the runs' estimate and the points' exposure (5), the chosen points'
-  // plan (6).
+  // plan (6), the measured backgrounds (7).
   ASSERT_EQ(sqlite3_exec(db,
                          "DROP INDEX jobs_by_state; DROP TABLE jobs; "
                          "ALTER TABLE plan_points DROP COLUMN planned_exposure_s; "
@@ -106,17 +107,22 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
                          "ALTER TABLE measurements DROP COLUMN sigma_stat; "
                          "ALTER TABLE measurements DROP COLUMN sigma_lamp; "
                          "ALTER TABLE measurements DROP COLUMN sigma_monitor; "
+                         "ALTER TABLE measurements DROP COLUMN background; "
+                         "ALTER TABLE measurements DROP COLUMN sigma_background; "
                          "PRAGMA user_version=1",
                          nullptr, nullptr, nullptr),
             SQLITE_OK);
   sqlite3_close(db);
   auto s = Storage::Open(path);
   ASSERT_TRUE(s.ok()) << s.error().message;
-  EXPECT_EQ((*s)->schema_version(), 6);
+  EXPECT_EQ((*s)->schema_version(), 7);
   auto rows = (*s)->Measurements(run);
   ASSERT_TRUE(rows.ok());
   ASSERT_EQ(rows->size(), 1u);
   EXPECT_EQ((*rows)[0].m.value, 42);
+  // No background was measured for it (schema 7): none subtracted, none in sigma.
+  EXPECT_FALSE((*rows)[0].m.background.has_value());
+  EXPECT_EQ((*rows)[0].m.sigma_background, 0);
   // An older run has no estimate, and its points' exposure is unknown, not zero.
   auto info = (*s)->GetRun(run);
   ASSERT_TRUE(info.ok());
@@ -225,6 +231,37 @@ TEST_F(StorageTest, ExportIsReadByTheFittersCsvReader) {
   ASSERT_EQ(samples->size(), 3u);
   EXPECT_EQ((*samples)[2].value, 102);
   EXPECT_EQ((*samples)[2].sigma, 0.1);
+  EXPECT_FALSE((*samples)[2].background_subtracted);  // none measured: a floor may be fitted
+}
+
+// A measured background (schema 7) is stored with its sigma, read back, exported in its columns,
+// and marks the fitter's samples as background-subtracted; a point without one exports empty.
+TEST_F(StorageTest, AMeasuredBackgroundIsStoredExportedAndMarksTheSample) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  const auto run = NewRun(**s, 2);
+  Measurement with = M(0, 100);
+  with.background = 3.25;
+  with.sigma_background = 0.0625;
+  ASSERT_TRUE((*s)->StoreMeasurement(run, with).ok());
+  ASSERT_TRUE((*s)->StoreMeasurement(run, M(1, 101)).ok());
+  auto rows = (*s)->Measurements(run);
+  ASSERT_TRUE(rows.ok());
+  ASSERT_EQ(rows->size(), 2u);
+  ASSERT_TRUE((*rows)[0].m.background.has_value());
+  EXPECT_EQ(*(*rows)[0].m.background, 3.25);
+  EXPECT_EQ((*rows)[0].m.sigma_background, 0.0625);
+  EXPECT_FALSE((*rows)[1].m.background.has_value());
+  std::ostringstream out;
+  ASSERT_TRUE((*s)->ExportCsv(run, out).ok());
+  const std::string text = out.str();
+  EXPECT_NE(text.find(",background,sigma_background\n"), std::string::npos) << text;
+  EXPECT_NE(text.find(",3.25,0.0625\n"), std::string::npos) << text;
+  auto samples = fitting::ParseSamplesCsv(text, "export");
+  ASSERT_TRUE(samples.ok()) << samples.error().message;
+  ASSERT_EQ(samples->size(), 2u);
+  EXPECT_TRUE((*samples)[0].background_subtracted);
+  EXPECT_FALSE((*samples)[1].background_subtracted);
 }
 
 }  // namespace

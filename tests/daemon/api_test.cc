@@ -468,8 +468,11 @@ TEST_F(DaemonApi, JobsRunInQueueOrderAndQueuedOnesCanBeMovedOrCancelled) {
   EXPECT_EQ(shown["estimate"]["basis"], "run " + std::to_string(run[first]) + "'s exposures");
   ASSERT_TRUE(shown["exposed_s"].is_number());
   double averaged_third = 0;
-  for (const json& m : shown["measurements"])
+  for (const json& m : shown["measurements"]) {
     averaged_third += m["exposure_s"].get<double>() * 2;  // the plan's 2 frames, at least
+    // No background measured (the plan asks for none): said as null, not left out.
+    EXPECT_TRUE(m.contains("background") && m.at("background").is_null()) << m.dump();
+  }
   EXPECT_GE(shown["exposed_s"].get<double>(), averaged_third);
   auto events = store->Events(run[third]);
   ASSERT_TRUE(events.ok());

@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 #include <random>
@@ -99,6 +100,29 @@ TEST(Fit, RecoversTheScaleToo) {
 }
 
 // ---- Narrow lobes sampled too coarsely -------------------------------------------------------
+
+// Issue #16 item 3: where no background was measured, Floor::kAuto keeps a floor the data need
+// (a sweep with a constant stray level added); where every sample's background was measured and
+// subtracted, it fits none and says why, whatever the data look like.
+TEST(Fit, AutoFloorIsKeptWhereNeededAndNotFittedWhereTheBackgroundWasMeasured) {
+  auto data = MakeSyntheticSweep(Sweep(Family::kBeckmann, kFigure12[0], 41));
+  double peak = 0;
+  for (const Sample& s : data) peak = std::max(peak, s.value);
+  for (Sample& s : data) s.value += 0.01 * peak;  // stray light, 1 % of the peak
+  FitOptions o;
+  o.floor = Floor::kAuto;
+  const FitSummary unmeasured = MustFit(data, o);
+  EXPECT_TRUE(unmeasured.floor_fitted) << unmeasured.floor_choice;
+  EXPECT_NEAR(unmeasured.floor.value, 0.01 * peak, 5 * unmeasured.floor.sigma);
+  for (Sample& s : data) s.background_subtracted = true;
+  const FitSummary measured = MustFit(data, o);
+  EXPECT_FALSE(measured.floor_fitted);
+  EXPECT_EQ(measured.floor.value, 0);
+  EXPECT_EQ(measured.floor_choice, "no floor: each point's background was measured and subtracted");
+  // One sample without a measured background: the choice is BIC's again.
+  data.front().background_subtracted = false;
+  EXPECT_TRUE(MustFit(data, o).floor_fitted);
+}
 
 TEST(Fit, AntiglareSampledEveryDegreeIsReportedUnconstrainedNotConfident) {
   for (Family family : {Family::kBeckmann, Family::kGgx}) {

@@ -3,9 +3,12 @@
 
 #include <cmath>
 #include <cstdio>
+#include <utility>
+#include <vector>
 
 #include "common/bench_angles.h"
 #include "sim/scene/bench.h"
+#include "sim/sim_config.h"
 #include "sim/truth/ground_truth.h"
 
 namespace gonio::sim {
@@ -122,6 +125,36 @@ TEST(SceneTest, ImageIsDarkBesideTheLensAndUnderTheArmShadow) {
   const StageAngles retro{20, 2, 0};
   EXPECT_TRUE(Nominal(scene.bench(), retro).arm_shadows_source);
   EXPECT_EQ(scene.PixelRate(retro, r, 256, 256), o.stray_lens_e_per_s);
+}
+
+// The beam block (#16 item 3): its flag covers the source beam from 45 to 135 deg, read from
+// the axis's steps as the camera reads the stages; in the beam, every pixel sees the stray light
+// alone, whatever the lobe, and the image is the stray light's wherever the lens is in view.
+TEST(SceneTest, TheBeamBlockLeavesTheStrayLightAlone) {
+  const SimConfig c = DefaultSimConfig();
+  ASSERT_EQ(c.axes.back().role, "beam_block");
+  std::vector<double> steps(c.axes.size(), 0.0);
+  steps[1] = 0;  // the arm at 180 deg: straight through
+  for (const auto& [deg, blocked] : std::vector<std::pair<double, bool>>{
+           {0, false}, {44.9, false}, {45, true}, {90, true}, {135, true}, {135.1, false}}) {
+    steps.back() = deg * c.axes.back().steps_per_degree;
+    EXPECT_EQ(AnglesFromSteps(c.axes, steps).beam_blocked, blocked) << deg << " deg";
+  }
+  SceneOptions o;
+  const Scene scene(BenchGeometry{}, MicrofacetTruth("beckmann", 0.3, 1.51), o);
+  ImageRegion r;
+  StageAngles a = StageAnglesFor(0, 0);
+  EXPECT_GT(scene.PixelRate(a, r, 256, 256), 100 * o.stray_lens_e_per_s);
+  a.beam_blocked = true;
+  EXPECT_TRUE(Nominal(scene.bench(), a).source_hidden);
+  EXPECT_EQ(scene.PixelRate(a, r, 256, 256), o.stray_lens_e_per_s);
+  EXPECT_EQ(scene.PixelRate(a, r, 0, 0), o.stray_background_e_per_s);
+  r.offset_x = 240, r.offset_y = 240, r.width = r.height = 32;
+  const cv::Mat1d img = scene.Render(a, r);
+  double lo = 0, hi = 0;
+  cv::minMaxLoc(img, &lo, &hi);
+  EXPECT_EQ(lo, o.stray_lens_e_per_s);
+  EXPECT_EQ(hi, o.stray_lens_e_per_s);
 }
 
 TEST(SceneTest, BinnedPixelSumsItsSensorPixels) {

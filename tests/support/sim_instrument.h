@@ -7,6 +7,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "daemon/instrument/instrument.h"
@@ -22,6 +23,8 @@ struct SimInstrumentOptions {
   std::shared_ptr<const sim::GroundTruth> truth;  // null: Walter 2007's ground glass
   std::vector<sim::FaultEvent> faults;            // injected by the simulated devices
   double frame_timeout_s = 5;                     // the camera driver's, beyond the exposure
+  // A third axis: the beam block's flag (role "beam_block", unit 3), out at 0 deg, in at 90.
+  bool beam_block = false;
 };
 
 class SimInstrument {
@@ -32,6 +35,15 @@ class SimInstrument {
     sim::SimConfig c = sim::TwoAxisConfig(o.clock_speed);
     c.lamp = o.lamp;
     c.faults = o.faults;
+    if (o.beam_block) {
+      sim::AxisConfig flag{
+          .role = "beam_block", .steps_per_degree = 100, .degrees_at_zero = 0, .options = {}};
+      flag.options.min_steps = 0;
+      flag.options.max_steps = 18'000;
+      flag.options.latched_inputs = true;
+      flag.options.ready_delay_s = 0.05;
+      c.axes.push_back(flag);
+    }
     auto started = sim::Instrument::Start(
         c, o.truth ? o.truth : sim::MicrofacetTruth("beckmann", 0.344, 1.51));
     if (!started.ok()) return started.error();
@@ -53,6 +65,7 @@ class SimInstrument {
     camera = opened_.camera.get();
     meter = opened_.monitor.monitor.get();
     axes = client.axes;
+    beam_block = client.beam_block;
     gain_db = o.gain_db;
     return OkStatus();
   }
@@ -74,6 +87,7 @@ class SimInstrument {
   devices::Camera* camera = nullptr;
   devices::SourceMonitor* meter = nullptr;
   std::vector<devices::AxisSettings> axes;
+  std::optional<devices::BeamBlockSettings> beam_block;  // with the option
   double gain_db = 12;
 };
 

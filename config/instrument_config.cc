@@ -212,7 +212,7 @@ Status ReadBench(Reader& r, const toml::table& t, fitting::BenchOptics& b) {
                    {"source_distance_mm", "camera_distance_mm", "sphere_radius_mm", "lens_eta",
                     "centred_thickness_mm", "plate_half_width_mm", "mm_per_pixel", "sensor_width",
                     "sensor_height", "source_sr", "receiver_sr", "angle_sigma_deg",
-                    "thickness_sigma_mm", "rectangle_sigma_px"}));
+                    "thickness_sigma_mm", "rectangle_sigma_px", "axis_x_px", "axis_y_px"}));
   GONIO_TRY(r.Number(t, "source_distance_mm", &b.source_distance_mm, 1, 1e5));
   GONIO_TRY(r.Number(t, "camera_distance_mm", &b.camera_distance_mm, 1, 1e5));
   GONIO_TRY(r.Number(t, "sphere_radius_mm", &b.sphere_radius_mm, 1, 1e4));
@@ -227,6 +227,8 @@ Status ReadBench(Reader& r, const toml::table& t, fitting::BenchOptics& b) {
   GONIO_TRY(r.Number(t, "angle_sigma_deg", &b.angle_sigma_deg, 0, 10));
   GONIO_TRY(r.Number(t, "thickness_sigma_mm", &b.thickness_sigma_mm, 0, 10));
   GONIO_TRY(r.Number(t, "rectangle_sigma_px", &b.rectangle_sigma_px, 0, 100));
+  GONIO_TRY(r.Number(t, "axis_x_px", &b.axis_x_px, -b.sensor_width, b.sensor_width));
+  GONIO_TRY(r.Number(t, "axis_y_px", &b.axis_y_px, -b.sensor_height, b.sensor_height));
   if (Status s = b.Validate(); !s.ok()) return r.Fail(&t, s.error().message);
   return OkStatus();
 }

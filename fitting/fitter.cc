@@ -421,6 +421,14 @@ SampleModel BuildModel(const Sample& s, std::size_t i, const ResponseCache& cach
   return sm;
 }
 
+// A setup moved to the geometry a fit found (GeometryUse's fitted offsets; 0 where not fitted).
+// The rectangle d pixels along an axis is the optical axis as far the other way.
+void MoveToFitted(const GeometryUse& g, ResponseSetup& c) {
+  c.thickness_mm += g.thickness.offset;
+  c.bench.axis_x_px -= g.rectangle_x.offset * c.rectangle.binning_h;
+  c.bench.axis_y_px -= g.rectangle_y.offset * c.rectangle.binning_v;
+}
+
 }  // namespace
 
 const char* ToString(FitStatus s) {
@@ -452,10 +460,14 @@ Status FitOptions::Validate() const {
   return OkStatus();
 }
 
-double Predict(const FitSummary& fit, const Sample& s) {
+double Predict(const FitSummary& fit, const Sample& sample) {
   const double w = fit.width.value, k = fit.scale.value, eta = fit.eta.value;
-  double value = MeasurementModel(fit.model, s.light, s.view, w, k, eta);
-  if (s.response && s.response->setup) {
+  double value = MeasurementModel(fit.model, sample.light, sample.view, w, k, eta);
+  if (sample.response && sample.response->setup) {
+    Sample s = sample;  // at the geometry the fit found
+    ResponseSetup moved = *s.response->setup;
+    MoveToFitted(fit.geometry, moved);
+    s.response->setup = std::make_shared<const ResponseSetup>(std::move(moved));
     ResponseCache cache(1);
     auto mode = DecideMode(fit.model, s, 0, cache, w, k, eta, FitOptions{}.response_tolerance);
     if (mode.ok()) {
@@ -884,19 +896,116 @@ std::optional<FitSummary> Refit(std::span<const Sample> samples, FitOptions o,
   return std::move(f).value();
 }
 
-// The width's change when the setup is moved: a least-squares refit of the moved samples against
-// one of the unmoved (`base`), both from `fit`'s solution. A sensitivity is the estimator's
-// derivative at the solution, where a robust loss's weights are those of least squares; a robust
-// refit of a setup moved by a whole pixel leaves residuals of many sigma, where Huber's
-// reweighting converges linearly (hundreds of iterations in CI's demo), and it measures the
-// loss's response to outliers rather than the derivative.
-std::optional<double> RefitWidth(std::span<const Sample> moved, const FitOptions& o,
-                                 const FitSummary& fit, const FitSummary& base) {
+// A least-squares refit of the moved samples from `fit`'s solution. Against one of the unmoved
+// (from the same solution) it gives the estimator's derivative along the move: at the solution a
+// robust loss weighs like least squares, and a robust refit of a setup moved by a whole pixel
+// leaves residuals of many sigma, where Huber's reweighting converges linearly (hundreds of
+// iterations in CI's demo) and measures the loss's response to outliers, not the derivative.
+std::optional<FitSummary> MovedRefit(std::span<const Sample> moved, const FitOptions& o,
+                                     const FitSummary& fit) {
   FitOptions ls = o;
   ls.loss = Loss::kNone;
-  auto f = Refit(moved, ls, fit);
-  if (!f) return std::nullopt;
-  return f->width.value - base.width.value;
+  return Refit(moved, ls, fit);
+}
+
+// NuisanceUse (fitter.h): one run-wide setup quantity profiled. `moved(d)` gives the samples with
+// it moved by d from the stated value (nullopt where the setup refuses that, e.g. a plate of no
+// thickness); the probes are at `at` and at +-`step` about it, `prior` is the stated sigma, all
+// in the quantity's unit. With u = (offset - at) / step, the refits give
+// chi2(u) = C + b u + c u^2 and w(u) = w0 + w1 u + w2 u^2 through u = -1, 0, 1; the prior adds
+// ((at + u step) / prior)^2, so the offset's posterior is N(at + mu step, s^2 step^2) with
+// 1/s^2 = c + (step/prior)^2 and mu = -(b + 2 at step / prior^2) s^2 / 2 (chi-square as -2 ln L,
+// scaled by the unmoved refit's reduced chi-square where that exceeds 1, as the parameters'
+// sigmas are). The width moves to w(mu), with variance (w1 + 2 w2 mu)^2 s^2 + 2 w2^2 s^4 (a
+// Gaussian through a parabola). The data's parabola is only trusted inside the probed range: a
+// mu beyond 1.5 steps, or a chi-square not convex along u, leaves the prior alone (and says so),
+// as does a quantity probed one way only, which is then linear in it.
+template <typename Moved>
+std::optional<NuisanceUse> ProfileAt(const Moved& moved, const FitOptions& o, const FitSummary& fit,
+                                     const FitSummary& base, double at, double step, double prior,
+                                     std::string* why_not) {
+  std::optional<FitSummary> centre, up, down;
+  if (at == 0) {
+    centre = base;
+  } else if (auto m = moved(at)) {
+    centre = MovedRefit(*m, o, fit);
+  }
+  if (!centre) return std::nullopt;
+  if (auto m = moved(at + step)) up = MovedRefit(*m, o, fit);
+  if (auto m = moved(at - step)) down = MovedRefit(*m, o, fit);
+  NuisanceUse n;
+  n.offset_sigma = prior;
+  const double u_prior = prior / step;
+  if (!up || !down) {
+    const std::optional<FitSummary>& one = up ? up : down;
+    if (!one) return std::nullopt;
+    n.width_sigma = std::abs(one->width.value - centre->width.value) * u_prior;
+    return n;
+  }
+  n.probed = true;
+  const double inflate = std::max(1.0, base.reduced_chi2);
+  const double b = (up->chi2 - down->chi2) / 2 / inflate;
+  const double c = ((up->chi2 + down->chi2) / 2 - centre->chi2) / inflate;
+  const double w0 = centre->width.value - base.width.value;
+  const double w1 = (up->width.value - down->width.value) / 2;
+  const double w2 = (up->width.value + down->width.value) / 2 - centre->width.value;
+  double mu = -at / step, s2 = u_prior * u_prior;  // the prior alone: the stated value
+  if (c > 0) {
+    const double s2_data = 1 / (c + 1 / (u_prior * u_prior));
+    const double mu_data = -(b + 2 * at * step / (prior * prior)) * s2_data / 2;
+    if (std::abs(mu_data) <= 1.5) {
+      mu = mu_data;
+      s2 = s2_data;
+      n.fitted = true;
+    } else if (why_not) {
+      std::ostringstream w;
+      w << std::setprecision(2) << "the data put it " << at + mu_data * step
+        << " off, beyond the probes: check the stated value";
+      *why_not = w.str();
+    }
+  } else if (why_not) {
+    *why_not = "chi-square not convex along it";
+  }
+  n.offset = at + mu * step;
+  n.offset_sigma = std::sqrt(s2) * step;
+  n.width_shift = w0 + w1 * mu + w2 * mu * mu;
+  const double slope = w1 + 2 * w2 * mu;
+  n.width_sigma = std::sqrt(slope * slope * s2 + 2 * w2 * w2 * s2 * s2);
+  return n;
+}
+
+// Profiles about the stated value with probes at its sigma, then again about the offset found,
+// with probes at twice its sigma, where the data know the quantity to better than a quarter of
+// the first step: the slope of chi-square through probes far outside the posterior carries their
+// cubic terms (on the demo's joint fit one-pixel probes put the rectangle 0.007 px from where
+// probes at 0.01 px do, more than its sigma of 0.005 px), while its curvature does not change
+// from 1 to 0.01 px.
+template <typename Moved>
+std::optional<NuisanceUse> Profile(const Moved& moved, const FitOptions& o, const FitSummary& fit,
+                                   const FitSummary& base, double prior, std::string* why_not) {
+  auto first = ProfileAt(moved, o, fit, base, 0, prior, prior, why_not);
+  if (!first || !first->fitted || first->offset_sigma >= prior / 4) return first;
+  std::string why_again;
+  auto again =
+      ProfileAt(moved, o, fit, base, first->offset, 2 * first->offset_sigma, prior, &why_again);
+  return again && again->fitted ? again : first;
+}
+
+// "x +0.12 +- 0.31 px (from the data; prior 1)"
+std::string DescribeNuisance(const NuisanceUse& n, const char* unit, double prior,
+                             const std::string& why_not) {
+  std::ostringstream d;
+  d << std::setprecision(2);
+  if (n.fitted)
+    d << std::showpos << n.offset << std::noshowpos << " +- " << n.offset_sigma << " " << unit
+      << " from the data (stated +-" << prior << "): width " << std::showpos << n.width_shift
+      << std::noshowpos << " +- " << n.width_sigma;
+  else
+    d << "+-" << prior << " " << unit << " as stated"
+      << (why_not.empty() ? std::string(n.probed ? " (the data add nothing)" : "")
+                          : " (" + why_not + ")")
+      << ": width +-" << n.width_sigma;
+  return d.str();
 }
 
 // GeometryUse (fitter.h): the geometry's stated uncertainties into the fit.
@@ -918,8 +1027,9 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   std::ostringstream note;
   // Per point: the angle read-back, through each sample's sigma.
   double angle_part = 0;
+  std::vector<Sample> widened;
   if (b.angle_sigma_deg > 0) {
-    std::vector<Sample> widened(samples.begin(), samples.end());
+    widened.assign(samples.begin(), samples.end());
     for (Sample& s : widened) {
       const double a = AngleSigma(fit, s);
       g.angle_max_fraction = std::max(g.angle_max_fraction, a / s.sigma);
@@ -955,36 +1065,53 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   } else {
     note << "angle read-back: not stated";
   }
-  // Common to the run: the thickness and the rectangle's position, by refits. One that does not
-  // converge leaves its part out of sigma, and the note says so; the fit itself stands.
+  // Common to the run: the thickness and the rectangle's position, profiled as nuisance
+  // parameters by refits of the samples the fit used (with the angle term in their sigmas where
+  // it went in). One that does not converge leaves its part out of sigma, and the note says so;
+  // the fit itself stands.
   std::optional<FitSummary> base;
   if (fit.status == FitStatus::kUnconstrained &&
       (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0)) {
-    // Four refits with the response each (about two thirds of such a fit's time) for a width
-    // the data do not constrain: not worth it. A poor fit keeps them: a geometry that is off is
-    // one reason a fit is poor.
+    // Refits with the response each (most of such a fit's time) for a width the data do not
+    // constrain: not worth it. A poor fit keeps them: a geometry that is off is one reason a
+    // fit is poor.
     note << "; thickness and rectangle: not computed (the data do not constrain the width)";
     g.note = note.str();
     fit.width.sigma_geometry = angle_part;
     fit.geometry = g;
     return fit;
   }
+  const std::span<const Sample> used = g.angle_in_fit ? std::span<const Sample>(widened) : samples;
   if (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0) {
     FitOptions ls = o;
     ls.loss = Loss::kNone;
-    base = Refit(samples, ls, fit);
+    base = Refit(used, ls, fit);
   }
-  const char* why = base ? " (the refit with it moved did not converge)"
+  const char* why = base ? " (a refit with it moved did not converge)"
                          : " (the unmoved least-squares refit did not converge)";
+  // The samples with every setup changed, or nullopt where a setup refuses the change.
+  auto moving = [&used](auto change) {
+    return [&used, change](double d) -> std::optional<std::vector<Sample>> {
+      auto m = WithSetupChanged(used, [&change, d](ResponseSetup& c) { change(c, d); });
+      for (const Sample& s : m)
+        if (s.response && s.response->setup && !s.response->setup->Validate().ok())
+          return std::nullopt;
+      return m;
+    };
+  };
+  double shift = 0;
   if (b.thickness_sigma_mm > 0) {
     const double t = b.thickness_sigma_mm;
-    std::optional<double> d;
+    std::string why_not;
+    std::optional<NuisanceUse> n;
     if (base)
-      d = RefitWidth(WithSetupChanged(samples, [t](ResponseSetup& c) { c.thickness_mm += t; }), o,
-                     fit, *base);
-    if (d) {
-      g.width_thickness = std::abs(*d);
-      note << "; thickness +-" << t << " mm: width +-" << g.width_thickness;
+      n = Profile(moving([](ResponseSetup& c, double d) { c.thickness_mm += d; }), o, fit, *base, t,
+                  &why_not);
+    if (n) {
+      g.thickness = *n;
+      g.width_thickness = n->width_sigma;
+      shift += n->width_shift;
+      note << "; thickness " << DescribeNuisance(*n, "mm", t, why_not);
     } else {
       g.left_out = true;
       note << "; thickness +-" << t << " mm: LEFT OUT of sigma" << why;
@@ -993,36 +1120,54 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
     note << "; thickness: not stated";
   }
   if (b.rectangle_sigma_px > 0) {
+    const double p = b.rectangle_sigma_px;
     double sum2 = 0;
     bool all = static_cast<bool>(base);
     for (int axis = 0; axis < 2 && all; ++axis) {
-      // One pixel along the axis (the other way at the sensor's edge), scaled to the sigma.
-      std::optional<double> d;
-      for (int step : {1, -1}) {
-        auto moved = WithSetupChanged(samples, [axis, step](ResponseSetup& c) {
-          (axis == 0 ? c.rectangle.x : c.rectangle.y) += step;
-        });
-        bool valid = true;
-        for (const Sample& s : moved)
-          if (s.response && s.response->setup && !s.response->setup->Validate().ok()) valid = false;
-        if (!valid) continue;
-        d = RefitWidth(moved, o, fit, *base);
+      std::string why_not;
+      // The rectangle d output pixels along the axis is the optical axis as far the other way.
+      auto n = Profile(moving([axis](ResponseSetup& c, double d) {
+                         if (axis == 0)
+                           c.bench.axis_x_px -= d * c.rectangle.binning_h;
+                         else
+                           c.bench.axis_y_px -= d * c.rectangle.binning_v;
+                       }),
+                       o, fit, *base, p, &why_not);
+      if (!n) {
+        all = false;
         break;
       }
-      if (d)
-        sum2 += *d * *d;
-      else
-        all = false;
+      (axis == 0 ? g.rectangle_x : g.rectangle_y) = *n;
+      sum2 += n->width_sigma * n->width_sigma;
+      shift += n->width_shift;
+      note << (axis == 0 ? "; rectangle x " : ", y ") << DescribeNuisance(*n, "px", p, why_not);
     }
     if (all) {
-      g.width_rectangle = b.rectangle_sigma_px * std::sqrt(sum2);
-      note << "; rectangle +-" << b.rectangle_sigma_px << " px: width +-" << g.width_rectangle;
+      g.width_rectangle = std::sqrt(sum2);
     } else {
       g.left_out = true;
-      note << "; rectangle +-" << b.rectangle_sigma_px << " px: LEFT OUT of sigma" << why;
+      note << "; rectangle +-" << p << " px: LEFT OUT of sigma" << why;
     }
   } else {
     note << "; rectangle position: not stated";
+  }
+  // The fit at the most probable geometry, with the fit's own loss, from its solution: the
+  // width, k, the floor, chi-square and the residuals are then all of the geometry the data
+  // found (Predict models it too). Should that refit not converge, the width alone moves by the
+  // profile's shift and the note says so.
+  if (g.thickness.fitted || g.rectangle_x.fitted || g.rectangle_y.fitted) {
+    auto best =
+        Refit(WithSetupChanged(used, [&g](ResponseSetup& c) { MoveToFitted(g, c); }), o, fit);
+    if (best) {
+      const std::string floor_choice = fit.floor_choice;
+      fit = std::move(best).value();
+      if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
+      note << "; refitted at that geometry";
+    } else {
+      fit.width.value += shift;
+      note << "; the refit at that geometry did not converge: the width moved by " << std::showpos
+           << shift << std::noshowpos << " alone";
+    }
   }
   const double common = std::hypot(g.width_thickness, g.width_rectangle);
   fit.width.sigma = std::hypot(fit.width.sigma, common);

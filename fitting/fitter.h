@@ -97,6 +97,19 @@ struct Parameter {
   double sigma_geometry = 0;
 };
 
+// A setup quantity common to a run (the plate's thickness, the rectangle's position along one
+// sensor axis) taken as a nuisance parameter: its stated sigma is a Gaussian prior about the
+// stated value, and the data's own chi-square along it (least-squares refits with it moved a
+// step either way) the likelihood. The width follows it as a parabola through the three refits.
+struct NuisanceUse {
+  bool probed = false;      // refits both ways converged (else one way, or none: see GeometryUse)
+  bool fitted = false;      // the data's parabola entered (else the prior alone)
+  double offset = 0;        // the posterior's most probable offset from the stated value
+  double offset_sigma = 0;  // its sigma (the prior's when not fitted)
+  double width_shift = 0;   // the width at that offset minus the width at the stated value
+  double width_sigma = 0;   // the width's sigma from the offset's
+};
+
 // How the geometry's uncertainties (BenchOptics: angle_sigma_deg, thickness_sigma_mm,
 // rectangle_sigma_px, stated with the samples' instrument response) entered a fit. The angle
 // read-back is independent from point to point: it enters each sample's sigma as
@@ -104,18 +117,24 @@ struct Parameter {
 // and the fit is redone with it when it changes some sample's sigma by more than
 // response_tolerance^2 / 2 (a tenth of sigma in quadrature at the default). The thickness and
 // the rectangle's position are common to a run: an error in them moves every point together, so
-// they go into the parameters' sigma as the change of a least-squares refit with each moved by
-// its sigma (against one unmoved); one that does not converge is left out and named in the note.
-// They are not computed for an unconstrained fit (no width to budget; the refits are most of a
-// response fit's time).
+// they are nuisance parameters (NuisanceUse), profiled by least-squares refits with each moved
+// a step either way (the thickness by its sigma, the rectangle by a pixel along x and along y)
+// against one unmoved. Where the data know a quantity better than its stated sigma, the fit is
+// redone at the most probable geometry (its width, k, floor, chi-square and residuals are that
+// refit's) and the width's geometry sigma shrinks to what is left; where they do not, the
+// prior's sigma stands. A refit that does not converge leaves its part out, named in the
+// note. They are not computed for an unconstrained fit (no width to budget; the refits are most
+// of a response fit's time).
 struct GeometryUse {
-  bool stated = false;            // the samples carry a response: the geometry is known
-  double angle_max_fraction = 0;  // the largest angle term over a sample's sigma
-  bool angle_in_fit = false;      // the fit was redone with the angle term in the sigmas
-  double width_thickness = 0;     // |width change| per thickness_sigma_mm
-  double width_rectangle = 0;     // |width change| per rectangle_sigma_px (x and y together)
-  bool left_out = false;          // a refit did not converge: its part is not in sigma (note)
-  std::string note;               // what was used and what was left out, in words
+  bool stated = false;                   // the samples carry a response: the geometry is known
+  double angle_max_fraction = 0;         // the largest angle term over a sample's sigma
+  bool angle_in_fit = false;             // the fit was redone with the angle term in the sigmas
+  double width_thickness = 0;            // the width's sigma from the thickness
+  double width_rectangle = 0;            // the width's sigma from the rectangle (x and y together)
+  NuisanceUse thickness;                 // mm
+  NuisanceUse rectangle_x, rectangle_y;  // sensor pixels
+  bool left_out = false;  // a refit did not converge: its part is not in sigma (note)
+  std::string note;       // what was used and what was left out, in words
 };
 
 // How the instrument response entered a fit (FitOptions::use_response).
@@ -163,7 +182,8 @@ struct FitSummary {
 Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& options);
 
 // The fitted model's prediction of a sample's value: through the sample's response where the fit
-// would use it (FitOptions' default tolerance), plus the floor.
+// would use it (FitOptions' default tolerance), at the geometry the fit found (GeometryUse's
+// fitted offsets), plus the floor.
 double Predict(const FitSummary& fit, const Sample& s);
 
 // Half-width at half maximum of the lobe, turned into an alpha-equivalent start (or nullopt when

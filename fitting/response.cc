@@ -146,6 +146,8 @@ Status BenchOptics::Validate() const {
                                     {"rectangle_sigma_px", rectangle_sigma_px}})
     if (!(std::isfinite(value) && value >= 0 && value < 1000))
       return InvalidArgument(std::string("bench.") + name + " must be a finite number >= 0");
+  if (!(std::abs(axis_x_px) <= sensor_width && std::abs(axis_y_px) <= sensor_height))
+    return InvalidArgument("bench.axis_x_px and axis_y_px must be finite and on the sensor");
   if (!(std::isfinite(source_sr) && source_sr >= 0 && source_sr < 1) ||
       !(std::isfinite(receiver_sr) && receiver_sr >= 0 && receiver_sr < 1))
     return InvalidArgument("bench.source_sr and receiver_sr must lie in [0, 1) sr");
@@ -187,7 +189,9 @@ std::string ResponseSetup::ToJson() const {
                      {"receiver_sr", b.receiver_sr},
                      {"angle_sigma_deg", b.angle_sigma_deg},
                      {"thickness_sigma_mm", b.thickness_sigma_mm},
-                     {"rectangle_sigma_px", b.rectangle_sigma_px}}},
+                     {"rectangle_sigma_px", b.rectangle_sigma_px},
+                     {"axis_x_px", b.axis_x_px},
+                     {"axis_y_px", b.axis_y_px}}},
                    {"rectangle",
                     {{"offset_x", r.offset_x},
                      {"offset_y", r.offset_y},
@@ -243,7 +247,9 @@ Result<ResponseSetup> ResponseSetup::FromJson(const std::string& text) {
   // The geometry's uncertainties came later: a run stored before them states none (0).
   for (const auto& [key, out] : {std::pair{"angle_sigma_deg", &b.angle_sigma_deg},
                                  {"thickness_sigma_mm", &b.thickness_sigma_mm},
-                                 {"rectangle_sigma_px", &b.rectangle_sigma_px}})
+                                 {"rectangle_sigma_px", &b.rectangle_sigma_px},
+                                 {"axis_x_px", &b.axis_x_px},
+                                 {"axis_y_px", &b.axis_y_px}})
     if (bench->contains(key)) number(*bench, "bench.", key, out);
   SensorRectangle& r = s.rectangle;
   integer(*rect, "rectangle.", "offset_x", &r.offset_x);
@@ -299,8 +305,10 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
     for (int col = c0; col < c1; col += block) {
       const int col_end = std::min(col + block, c1);
       // The block's centre in pixel-centre coordinates: (first + last + 1) / 2.
-      const double x = (0.5 * (col + col_end) - b.sensor_width / 2.0) * b.mm_per_pixel;
-      const double y = (0.5 * (row + row_end) - b.sensor_height / 2.0) * b.mm_per_pixel;
+      const double x =
+          (0.5 * (col + col_end) - b.sensor_width / 2.0 - b.axis_x_px) * b.mm_per_pixel;
+      const double y =
+          (0.5 * (row + row_end) - b.sensor_height / 2.0 - b.axis_y_px) * b.mm_per_pixel;
       const auto t = reflection ? TraceReflected(setup, source_dir, camera_dir, phi, x, y)
                                 : TraceOne(setup, source_dir, camera_dir, phi, x, y);
       if (!t || t->l.z <= 0) continue;

@@ -63,6 +63,10 @@ struct BenchOptics {
   double angle_sigma_deg = 0;
   double thickness_sigma_mm = 0;
   double rectangle_sigma_px = 0;
+  // Where the optical axis meets the sensor, sensor pixels right of and below its centre (the
+  // camera's alignment; 0 = the centre). The fitter moves it by fractions of a pixel to profile
+  // the rectangle's position (fitter.h, GeometryUse).
+  double axis_x_px = 0, axis_y_px = 0;
 
   Status Validate() const;  // positive, finite lengths; sensor size; apertures >= 0
 };

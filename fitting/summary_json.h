@@ -15,6 +15,15 @@ inline nlohmann::json ToJson(const FitSummary& f) {
                           {"sigma_stat", p.sigma_stat},
                           {"sigma_geometry", p.sigma_geometry}};
   };
+  // A geometry nuisance parameter: the offset from the stated value the data found (fitted) or
+  // the prior (not), and what it moved the width by.
+  auto nuisance = [](const NuisanceUse& n) {
+    return nlohmann::json{{"fitted", n.fitted},
+                          {"offset", n.offset},
+                          {"offset_sigma", n.offset_sigma},
+                          {"width_shift", n.width_shift},
+                          {"width_sigma", n.width_sigma}};
+  };
   return {{"model", Describe(f.model)},
           {"family", Name(f.model.family)},
           {"status", ToString(f.status)},
@@ -49,6 +58,9 @@ inline nlohmann::json ToJson(const FitSummary& f) {
             {"left_out", f.geometry.left_out},
             {"width_thickness", f.geometry.width_thickness},
             {"width_rectangle", f.geometry.width_rectangle},
+            {"thickness_mm", nuisance(f.geometry.thickness)},
+            {"rectangle_x_px", nuisance(f.geometry.rectangle_x)},
+            {"rectangle_y_px", nuisance(f.geometry.rectangle_y)},
             {"note", f.geometry.note}}},
           {"seconds", f.seconds}};
 }

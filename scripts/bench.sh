@@ -16,13 +16,19 @@
 #                    interval                      -> rtu_polling.md
 #   measurement_tradeoff  fit time against alpha bias and coverage: point model, rectangle,
 #                    rectangle + apertures, on Figure 12's samples -> measurement_tradeoff.md
+#   instrument_coverage.sh  alpha's 2-sigma coverage, bias and pull spread through the whole
+#                    simulated instrument (gonio-sim, drivers, engine, SQLite, gonio-fit), ground
+#                    glass (the demo's plan) and antiglare (auto rectangle); not in the default
+#                    set: COVERAGE_RUNS (default 20) runs of about 2 minutes per case
+#                                                  -> coverage_ground.md, coverage_antiglare.md
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass
 #                                                  -> acquire.md, acquire.json, acquire.png
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|acquire|sweep|api|stop|rtu|soak ...]
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|sweep|api|stop|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20)
+#        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20)
 #        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
-#        (default: all but soak)
+#        (default: all but coverage and soak)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh
@@ -58,6 +64,11 @@ for part in "${parts[@]}"; do
     measure)
       build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" \
         | tee out/bench/measurement_tradeoff.md ;;
+    coverage)  # holds the GigE Vision port: no other simulated camera may run meanwhile
+      bench/instrument_coverage.sh build-release "${COVERAGE_RUNS:-20}" config/plan_demo.toml \
+        | tee out/bench/coverage_ground.md
+      SIM_ALPHA=0.023 bench/instrument_coverage.sh build-release "${COVERAGE_RUNS:-20}" \
+        bench/coverage/plan_antiglare.toml | tee out/bench/coverage_antiglare.md ;;
     acquire)
       build-release/bench/acquire_strategies "${ACQUIRE_REPEATS:-100}" out/bench/acquire.json \
         | tee out/bench/acquire.md
@@ -72,7 +83,7 @@ for part in "${parts[@]}"; do
       build-release/bench/rtu_polling 115200 10 | tee out/bench/rtu_polling.md ;;
     soak)   # not in the default set: 10,000 points, several minutes
       build-release/bench/acquisition_sweep soak 10000 100 | tee out/bench/acquisition_soak.md ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, measure, sweep, api, stop, rtu, soak)" >&2
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, measure, coverage, acquire, sweep, api, stop, rtu, soak)" >&2
        exit 2 ;;
   esac
 done

@@ -1,11 +1,12 @@
 # Sourced by the shell tests that need the simulated instrument as a separate process.
-# start_gonio_sim SIM SPEED WORK SRC: starts gonio-sim on 127.0.0.1 (free ports, written to
+# start_gonio_sim SIM SPEED WORK SRC [gonio-sim options...]: starts gonio-sim on 127.0.0.1 (free ports, written to
 # WORK/port and WORK/mport), waits until it listens, writes WORK/instrument.toml (the example
 # config pointed at those ports) and sets sim_pid. The program itself is the background job, so
 # signals sent to $sim_pid reach it (not a subshell); the caller's EXIT trap should kill it.
 start_gonio_sim() {
   local sim=$1 speed=$2 work=$3 src=$4
-  "$sim" --speed "$speed" --port 0 --port-file "$work/port" --monitor-port 0 \
+  shift 4
+  "$sim" "$@" --speed "$speed" --port 0 --port-file "$work/port" --monitor-port 0 \
     --monitor-port-file "$work/mport" > "$work/sim.log" 2>&1 &
   sim_pid=$!
   for _ in $(seq 200); do [[ -s "$work/port" && -s "$work/mport" ]] && break; sleep 0.05; done

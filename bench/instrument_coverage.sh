@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# alpha's coverage through the whole simulated instrument (issue #16): gonio-sim (the stages over
+# Modbus, the camera through GigE Vision, the lamp monitor), the drivers, the engine, SQLite, the
+# export and gonio-fit, RUNS times over one plan on one simulated bench. Each run is fitted at
+# normal incidence and jointly; the table gives, per fit, how often alpha's 2-sigma interval
+# covers the simulator's truth (config/sim.toml's alpha, or SIM_ALPHA), the mean bias in units of the
+# mean sigma, and the spread of the pulls (alpha - truth) / sigma.
+# Usage: [SIM_ALPHA=a] bench/instrument_coverage.sh BUILD_DIR RUNS [PLAN] [SPEED]
+#   BUILD_DIR  where gonio-sim, gonio-acquire and gonio-fit were built (build-release from bench.sh)
+#   PLAN       default config/plan_demo.toml;  SPEED  simulated seconds per real second, default 50
+#   SIM_ALPHA  the simulated sample's width instead of config/sim.toml's (e.g. 0.023 for
+#              bench/coverage/plan_antiglare.toml)
+#   SIM_THICKNESS  the plate's thickness in mm, for the simulated sample and the catalogue's
+#              specimens alike (the sphere centre then lies off the rough face unless 6)
+#   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later)
+# Holds the GigE Vision port while it runs: no other simulated camera may run meanwhile.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+build=${1:?usage: bench/instrument_coverage.sh BUILD_DIR RUNS [PLAN] [SPEED]}
+runs=${2:?usage: bench/instrument_coverage.sh BUILD_DIR RUNS [PLAN] [SPEED]}
+plan=${3:-config/plan_demo.toml}
+speed=${4:-50}
+[[ "$runs" =~ ^[1-9][0-9]*$ ]] || { echo "instrument_coverage: RUNS must be a positive integer" >&2; exit 2; }
+[[ -f "$plan" ]] || { echo "instrument_coverage: no plan file $plan" >&2; exit 2; }
+work=$(mktemp -d)
+sim_config=$work/sim.toml samples=$work/samples.toml
+thickness="s/^thickness_mm = [0-9.]*/thickness_mm = ${SIM_THICKNESS:-6.0}/"
+alpha=""
+[[ -n "${SIM_ALPHA:-}" ]] && alpha="s/^alpha = [0-9.]*/alpha = $SIM_ALPHA/"
+sed -e "$thickness" ${alpha:+-e "$alpha"} config/sim.toml > "$sim_config"
+sed -e "$thickness" config/samples.toml > "$samples"
+source tests/support/gonio_sim.sh
+trap 'stop_gonio_sim; rm -rf "$work"' EXIT
+start_gonio_sim "$build/sim/gonio-sim" "$speed" "$work" "$PWD" --config "$sim_config"
+truth=$(sed -n 's/^alpha *= *\([0-9.]*\).*/\1/p' "$sim_config" | head -1)
+echo "# alpha's coverage through the whole simulated instrument"
+echo
+echo "$runs runs of \`$plan\` on gonio-sim at x$speed (config/sim.toml, Beckmann alpha = $truth," \
+  "a ${SIM_THICKNESS:-6.0} mm plate), fitted with \`gonio-fit --model beckmann\`. Command:" \
+  "\`${SIM_ALPHA:+SIM_ALPHA=$SIM_ALPHA }${SIM_THICKNESS:+SIM_THICKNESS=$SIM_THICKNESS }bench/instrument_coverage.sh $build $runs $plan $speed\`."
+echo
+for i in $(seq "$runs"); do
+  "$build/daemon/gonio-acquire" -c "$work/instrument.toml" --samples "$samples" \
+    --db "$work/runs.sqlite" run "$plan" > "$work/acquire.log" 2>&1 ||
+    { echo "instrument_coverage: run $i failed:" >&2; tail -20 "$work/acquire.log" >&2; exit 1; }
+  "$build/daemon/gonio-acquire" --db "$work/runs.sqlite" export "$i" --out "$work/run$i.csv" \
+    > /dev/null
+  "$build/fitting/gonio-fit" "$work/run$i.csv" --model beckmann --out "$work/fit$i" \
+    > "$work/fit$i.txt" 2>&1 ||
+    { echo "instrument_coverage: fit of run $i failed:" >&2; tail -20 "$work/fit$i.txt" >&2; exit 1; }
+  if [[ -n "${COVERAGE_KEEP:-}" ]]; then
+    mkdir -p "$COVERAGE_KEEP"
+    cp -r "$work/run$i.csv" "$work/fit$i" "$work/fit$i.txt" "$COVERAGE_KEEP/"
+  fi
+  echo "run $i of $runs fitted" >&2
+done
+/usr/bin/python3 - "$work" "$runs" "$truth" <<'EOF'
+import json, math, statistics, sys
+work, runs, truth = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+rows = {"normal incidence": [], "joint": []}
+for i in range(1, runs + 1):
+    s = json.load(open(f"{work}/fit{i}/fit_summary.json"))
+    for name, fits in (("normal incidence", s["normal_incidence_fits"]), ("joint", s["fits"])):
+        f = fits[0]
+        rows[name].append((f["width"]["value"], f["width"]["sigma"], f["width"]["sigma_geometry"],
+                           f["reduced_chi2"], f["status"]))
+print("| fit | runs converged | 2σ covers truth | mean bias / mean σ | pull rms | mean σ(α) | of which geometry | χ²/dof range |")
+print("|---|---|---|---|---|---|---|---|")
+for name, r in rows.items():
+    ok = [x for x in r if x[4] == "converged"]
+    pulls = [(a - truth) / s for a, s, *_ in ok if s > 0]
+    covered = sum(abs(p) < 2 for p in pulls)
+    mean_sigma = statistics.fmean(s for _, s, *_ in ok) if ok else float("nan")
+    bias = statistics.fmean(a for a, *_ in ok) - truth if ok else float("nan")
+    rms = math.sqrt(statistics.fmean(p * p for p in pulls)) if pulls else float("nan")
+    geo = statistics.fmean(g for _, _, g, *_ in ok) if ok else float("nan")
+    chi = [x[3] for x in ok]
+    print(f"| {name} | {len(ok)}/{runs} | {covered}/{len(pulls)} | {bias / mean_sigma:+.2f} | {rms:.2f} "
+          f"| {mean_sigma:.2g} | {geo:.2g} | {min(chi):.2f}–{max(chi):.2f} |")
+EOF

@@ -50,7 +50,7 @@ std::vector<Clean> Render(const Case& c) {
   sim::BenchGeometry bench;
   bench.sample_thickness_mm = c.thickness_mm;
   sim::SceneOptions o;
-  // The scene's cone quadrature, fine enough for the narrow lobe to be the truth at 1e-4.
+  // The scene's cone quadrature, far finer than the narrow lobe needs (20 converge to 1e-6).
   if (c.alpha < 0.1) o.aperture_points = 64;
   const sim::Scene scene(bench, sim::MicrofacetTruth(c.family, c.alpha, 1.51), o);
   auto setup = std::make_shared<fitting::ResponseSetup>();

@@ -19,8 +19,8 @@ struct Apertures {
 
 // BTDF*cos averaged uniformly over the source cone around l and the receiver cone around v (the
 // view cone is the same inside the glass: rays to the camera leave the hemisphere along its
-// normal, unrefracted). Quadrature: a Fibonacci-spiral set of points on each disk of directions,
-// n_points per cone (the product is evaluated).
+// normal, unrefracted). Quadrature: about n_points directions per cone, on rings at the
+// Gauss-Legendre nodes of cos(theta) and evenly spaced in azimuth (the product is evaluated).
 double ApertureAveragedBtdfCos(const GroundTruth& truth, const optics::Vec3<double>& l,
                                const optics::Vec3<double>& v, const Apertures& a,
                                int n_points = 32);

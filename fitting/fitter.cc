@@ -1012,9 +1012,7 @@ std::string DescribeNuisance(const NuisanceUse& n, const char* unit, double prio
       << std::noshowpos << " +- " << n.width_sigma;
   else
     d << "+-" << prior << " " << unit << " as stated"
-      << (why_not.empty() ? std::string(n.probed ? " (the data add nothing)" : "")
-                          : " (" + why_not + ")")
-      << ": width +-" << n.width_sigma;
+      << (why_not.empty() ? std::string() : " (" + why_not + ")") << ": width +-" << n.width_sigma;
   return d.str();
 }
 

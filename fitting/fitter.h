@@ -164,9 +164,12 @@ struct FitSummary {
 
   int n_points = 0;
   int n_params = 0;
-  double chi2 = 0;  // sum of squared normalised residuals (without the robust loss)
-  double reduced_chi2 = 0;
-  double aic = 0;                 // chi2 + 2 p
+  // The geometry's nuisance parameters the data fixed (GeometryUse), each counted as
+  // 1 - s^2 / sigma_prior^2 of a parameter: the share of its prior the data replaced.
+  double n_nuisance = 0;
+  double chi2 = 0;                // sum of squared normalised residuals (without the robust loss)
+  double reduced_chi2 = 0;        // chi2 / (n_points - n_params - n_nuisance)
+  double aic = 0;                 // chi2 + 2 p, p = n_params + n_nuisance
   double bic = 0;                 // chi2 + p ln n
   std::vector<double> residuals;  // (model - value) / sigma, in the order of the samples
 

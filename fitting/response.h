@@ -123,7 +123,8 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
 
 // The response with every pair spread over the source and lens cones: the rectangle traced with
 // at most `max_base_rays` rays, then each ray turned into rings x per_ring directions in each
-// cone (equal-area rings, the product of the two), its weight divided evenly among them. Each
+// cone (rings at the Gauss-Legendre nodes of cos theta, per_ring directions evenly spaced on
+// each; the product of the two cones), its weight shared by the rule's weights. Each
 // ray's cones are turned by the golden angle times its index, so that many rays with few cone
 // directions each still cover the cones evenly between them (large rectangles).
 Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const StagePosition& at,
@@ -132,11 +133,13 @@ Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const 
 
 // Successively finer responses of one point, for the fitter's refinement. The rectangle's levels
 // trace more rays (64, 256, 1 024, then every pixel); the apertures' levels keep the rectangle's
-// rays (at its level) and spread each over more directions per cone (5, 10, 20, 40, 80; each
-// ray's cones turned by the golden angle). nullopt past the finest.
+// rays (at its level) and spread each over more rings and directions per cone (rings x per_ring:
+// 1 x 5, 2 x 6, 3 x 8, 4 x 12, 6 x 16; each ray's cones turned by the golden angle). nullopt
+// past the finest.
 struct ResponseLevel {
-  int max_rays = 0;     // 0: every pixel
-  int cone_points = 0;  // directions per cone; 0: no apertures
+  int max_rays = 0;       // 0: every pixel
+  int cone_rings = 0;     // Gauss-Legendre rings per cone; 0: no apertures
+  int cone_per_ring = 0;  // directions on each ring
 };
 std::optional<ResponseLevel> RectangleLevel(int level);
 // The apertures' level `level` on top of the rectangle's `rectangle_level`.
@@ -145,7 +148,8 @@ Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition&
                                 const ResponseLevel& level);
 
 // One pair spread over the two cones (what ComputeResponseWithApertures does to each ray): the
-// product of the cones' directions, `weight` divided evenly; directions below the horizon dropped.
+// product of the cones' directions, `weight` shared by the quadrature's weights (they sum to
+// `weight`); directions below the horizon dropped.
 std::vector<ResponseRay> ApertureCones(const optics::Vec3<double>& l, const optics::Vec3<double>& v,
                                        double weight, double source_half_angle,
                                        double receiver_half_angle, int rings = 3, int per_ring = 6,

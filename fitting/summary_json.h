@@ -35,6 +35,7 @@ inline nlohmann::json ToJson(const FitSummary& f) {
           {"alpha_equivalent", f.alpha_equivalent},
           {"n_points", f.n_points},
           {"n_params", f.n_params},
+          {"n_nuisance", f.n_nuisance},
           {"chi2", f.chi2},
           {"reduced_chi2", f.reduced_chi2},
           {"aic", f.aic},

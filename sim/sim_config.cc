@@ -62,10 +62,11 @@ Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::str
   const toml::table* a = item.as_table();
   if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
   AxisConfig ax;
-  GONIO_TRY(r.Keys(*a, "stages.axis",
-                   {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps",
-                    "settle_s", "limit_switches", "limit_min_steps", "limit_max_steps",
-                    "backlash_steps", "latched_inputs", "ready_delay_s", "stall_alarm"}));
+  GONIO_TRY(
+      r.Keys(*a, "stages.axis",
+             {"role", "steps_per_degree", "degrees_at_zero", "min_steps", "max_steps", "settle_s",
+              "limit_switches", "limit_min_steps", "limit_max_steps", "backlash_steps",
+              "settle_error_steps", "latched_inputs", "ready_delay_s", "stall_alarm"}));
   if (a->get("role") == nullptr) return r.Fail(&item, "axis without 'role'");
   GONIO_TRY(r.String(*a, "role", &ax.role, {"sample", "arm", "azimuth", "beam_block"}));
   if (!roles.insert(ax.role).second) {
@@ -84,6 +85,8 @@ Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::str
   if (ax.options.limit_min_steps >= ax.options.limit_max_steps)
     return r.Fail(a, "limit_min_steps must be below limit_max_steps");
   GONIO_TRY(r.Number(*a, "backlash_steps", &ax.options.backlash_steps, 0, 1e6));
+  GONIO_TRY(r.Number(*a, "settle_error_steps", &ax.options.settle_error_steps, 0, 1e3));
+  ax.options.settle_seed = 1 + roles.size();  // each axis its own draws
   GONIO_TRY(r.Bool(*a, "latched_inputs", &ax.options.latched_inputs));
   GONIO_TRY(r.Number(*a, "ready_delay_s", &ax.options.ready_delay_s, 0, 10));
   GONIO_TRY(r.Bool(*a, "stall_alarm", &ax.options.stall_alarm));

@@ -13,7 +13,8 @@ SimulatedAxis::SimulatedAxis(const Clock& clock, AxisOptions options, std::strin
       o_(options),
       name_(std::move(name)),
       faults_(faults),
-      move_(clock.Now(), 0, 0, 1, 1, 1) {
+      move_(clock.Now(), 0, 0, 1, 1, 1),
+      settle_rng_(options.settle_seed) {
   Refresh();
 }
 
@@ -58,7 +59,7 @@ bool SimulatedAxis::Moving() const {
 
 double SimulatedAxis::PositionSteps() const {
   std::lock_guard lock(mu_);
-  return LoadAt(clock_.Now());
+  return LoadAt(clock_.Now()) + settle_offset_;
 }
 
 double SimulatedAxis::MotorSteps() const {
@@ -112,6 +113,9 @@ void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, in
 
 void SimulatedAxis::NewMove(double now, const TrapezoidalMove& move) {
   load_anchor_ = LoadAt(now);
+  if (o_.settle_error_steps > 0)
+    settle_offset_ = std::uniform_real_distribution<double>(-o_.settle_error_steps,
+                                                            o_.settle_error_steps)(settle_rng_);
   move_ = move;  // built from where the motor is (MotorAt), a silent stall included
   hard_stop_.reset();
   silent_stall_.reset();

@@ -8,6 +8,7 @@
 #include <array>
 #include <cstdint>
 #include <mutex>
+#include <random>
 
 #include <optional>
 #include <string>
@@ -76,6 +77,13 @@ struct AxisOptions {
   // a reversal. The encoder (0x00C6) reads the motor; the camera sees the load. A driver that
   // always approaches from the same side sees a constant offset instead of a hysteresis.
   double backlash_steps = 0;
+  // Where a move leaves the load against the motor's step: uniform within +-settle_error_steps,
+  // drawn afresh for each move (a stepper's step-angle accuracy, the gearing's play within a
+  // step). The encoder reads the motor, so its read-back is off from the stage by that much:
+  // +-0.5 steps gives the read-back a sigma of 1/sqrt(12) of a step, the instrument's stated
+  // angle_sigma_deg (config/instrument.toml). 0: the load stops exactly on the step.
+  double settle_error_steps = 0;
+  std::uint64_t settle_seed = 1;  // the draws' seed (each axis its own)
   // How the real AZ driver differs from a forgiving one (docs/stage_register_map.md, "Handshakes"):
   // Input commands latched: the input-command register keeps what was written, a command acts on
   // its bit's off-to-on edge, and a STOP left on blocks every operation until it is cleared.
@@ -156,7 +164,9 @@ class SimulatedAxis {
   FaultPlan* faults_;
   std::array<std::uint16_t, stage_reg::kCount> regs_{};
   TrapezoidalMove move_;
-  double load_anchor_ = 0;  // the load at the start of move_
+  double load_anchor_ = 0;    // the load at the start of move_
+  double settle_offset_ = 0;  // the load against LoadAt's for the current move (settle_error_steps)
+  std::mt19937_64 settle_rng_;
   // Known when the move starts (a switch on the path, a stall drawn by the fault plan); becomes
   // an alarm at the first register access after its time.
   std::optional<HardStop> hard_stop_;

@@ -216,6 +216,36 @@ TEST_F(AxisWith, BacklashIsAHysteresisThatOneSidedApproachTurnsIntoAnOffset) {
   EXPECT_NEAR(from_below, 5000 - 20, 1e-9);
 }
 
+// A stepper's stage stops within a fraction of a step of where its motor is, differently each
+// move; the encoder reads the motor. Over many moves the stage's error against the read-back is
+// uniform within +-settle_error_steps: its standard deviation is 2 x 0.5 / sqrt(12) steps at 0.5.
+TEST_F(AxisWith, EachMoveLeavesTheStageWithinItsSettleErrorOfTheEncoder) {
+  AxisOptions o;
+  o.settle_error_steps = 0.5;
+  Make(o);
+  double sum = 0, sum2 = 0, largest = 0;
+  constexpr int kMoves = 400;
+  for (int k = 0; k < kMoves; ++k) {
+    const std::int32_t target = 1000 + 10 * (k % 7);
+    Move(target);
+    clock.Advance(1);
+    EXPECT_EQ(static_cast<std::int32_t>(Reg32(kCommandPosition)), target);
+    const double e = other->PositionSteps() - other->MotorSteps();
+    sum += e;
+    sum2 += e * e;
+    largest = std::max(largest, std::abs(e));
+  }
+  EXPECT_LE(largest, 0.5);
+  EXPECT_GT(largest, 0.45);
+  EXPECT_NEAR(sum / kMoves, 0, 0.05);  // sd of the mean: 0.29 / 20
+  EXPECT_NEAR(std::sqrt(sum2 / kMoves), 1 / std::sqrt(12.0), 0.03);
+  // Off by default: the stage stops on the step.
+  Make({});
+  Move(2000);
+  clock.Advance(2);
+  EXPECT_EQ(other->PositionSteps(), other->MotorSteps());
+}
+
 TEST_F(AxisWith, FaultPlanStallRaisesPositionDeviationPartWay) {
   FaultPlan plan({OnOpportunity(FaultKind::kAxisStall, 2)}, 1);
   Make({}, &plan);

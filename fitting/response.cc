@@ -1,5 +1,6 @@
 #include "fitting/response.h"
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <iterator>
@@ -110,29 +111,19 @@ void Basis(const V& w, V* a, V* b) {
   *b = Cross(w, *a);
 }
 
-// m-point Gauss-Legendre rule on [-1, 1]: the roots of P_m by Newton's method from Tricomi's
-// first guess, P_m and P_m' from the three-term recurrence, w_i = 2 / ((1 - x_i^2) P_m'(x_i)^2).
-// Exact for polynomials of degree 2m - 1.
+// m-point Gauss-Legendre rule on [-1, 1] by Golub and Welsch (1969): the nodes are the
+// eigenvalues of the Jacobi matrix of the Legendre recurrence (zero diagonal, off-diagonal
+// k / sqrt(4k^2 - 1)), each weight 2 v_0^2 from its unit eigenvector. Exact for polynomials of
+// degree 2m - 1. (The scene computes its rule by Newton's method instead: independent code.)
 void GaussLegendreRule(int m, std::vector<double>* nodes, std::vector<double>* weights) {
+  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(m, m);
+  for (int k = 1; k < m; ++k) j(k, k - 1) = j(k - 1, k) = k / std::sqrt(4.0 * k * k - 1);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(j);
   nodes->assign(m, 0);
   weights->assign(m, 0);
   for (int i = 0; i < m; ++i) {
-    double x = std::cos(optics::kPi * (i + 0.75) / (m + 0.5));
-    double dp = 1;
-    for (int iter = 0; iter < 100; ++iter) {
-      double p0 = 1, p1 = x;  // P_0, P_1
-      for (int n = 2; n <= m; ++n) {
-        const double p2 = ((2 * n - 1) * x * p1 - (n - 1) * p0) / n;
-        p0 = p1;
-        p1 = p2;
-      }
-      dp = m * (x * p1 - p0) / (x * x - 1);  // P_m' from P_m and P_(m-1)
-      const double dx = p1 / dp;
-      x -= dx;
-      if (std::abs(dx) < 1e-15) break;
-    }
-    (*nodes)[i] = x;
-    (*weights)[i] = 2 / ((1 - x * x) * dp * dp);
+    (*nodes)[i] = es.eigenvalues()(i);
+    (*weights)[i] = 2 * es.eigenvectors()(0, i) * es.eigenvectors()(0, i);
   }
 }
 

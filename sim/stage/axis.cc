@@ -113,7 +113,8 @@ void SimulatedAxis::Write(std::uint16_t address, const std::uint16_t* values, in
 
 void SimulatedAxis::NewMove(double now, const TrapezoidalMove& move) {
   load_anchor_ = LoadAt(now);
-  if (o_.settle_error_steps > 0)
+  // A move to where the motor already is leaves the stage where it was.
+  if (o_.settle_error_steps > 0 && move.target() != MotorAt(now))
     settle_offset_ = std::uniform_real_distribution<double>(-o_.settle_error_steps,
                                                             o_.settle_error_steps)(settle_rng_);
   move_ = move;  // built from where the motor is (MotorAt), a silent stall included

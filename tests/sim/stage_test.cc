@@ -219,6 +219,8 @@ TEST_F(AxisWith, BacklashIsAHysteresisThatOneSidedApproachTurnsIntoAnOffset) {
 // A stepper's stage stops within a fraction of a step of where its motor is, differently each
 // move; the encoder reads the motor. Over many moves the stage's error against the read-back is
 // uniform within +-settle_error_steps: its standard deviation is 2 x 0.5 / sqrt(12) steps at 0.5.
+// A stage that is not moved keeps its error: one incidence's sweep moves the arm alone, and the
+// sample stage's error is then common to the sweep's points.
 TEST_F(AxisWith, EachMoveLeavesTheStageWithinItsSettleErrorOfTheEncoder) {
   AxisOptions o;
   o.settle_error_steps = 0.5;
@@ -239,6 +241,11 @@ TEST_F(AxisWith, EachMoveLeavesTheStageWithinItsSettleErrorOfTheEncoder) {
   EXPECT_GT(largest, 0.45);
   EXPECT_NEAR(sum / kMoves, 0, 0.05);  // sd of the mean: 0.29 / 20
   EXPECT_NEAR(std::sqrt(sum2 / kMoves), 1 / std::sqrt(12.0), 0.03);
+  // A move to where the motor already is does not move the stage.
+  const double before = other->PositionSteps();
+  Move(static_cast<std::int32_t>(Reg32(kCommandPosition)));
+  clock.Advance(1);
+  EXPECT_EQ(other->PositionSteps(), before);
   // Off by default: the stage stops on the step.
   Make({});
   Move(2000);

@@ -447,6 +447,18 @@ TEST(ResponseTest, TheThicknessAndTheRectanglesPositionAreNuisanceParametersOfTh
   EXPECT_NE(unknown->geometry.note.find("not known"), std::string::npos);
 }
 
+// A 1 x 3 mm rectangle on a 6 mm plate (no apertures) that is `off_px` left of the optical axis,
+// and the setup that states it on the axis to +-1 px.
+std::pair<fitting::ResponseSetup, fitting::ResponseSetup> RectangleOffAxis(double off_px) {
+  auto made = CentredSetup(1, 3, 6);
+  made.bench.source_sr = made.bench.receiver_sr = 0;
+  made.bench.axis_x_px = off_px;
+  auto stated = made;
+  stated.bench.axis_x_px = 0;
+  stated.bench.rectangle_sigma_px = 1;
+  return {made, stated};
+}
+
 // The rectangle's position against the optical axis (common to the run), 0.8 px off what
 // the configuration says. Not stated, the fit takes the stated position as exact and alpha's
 // 2-sigma interval misses the truth (even with sigma inflated by chi-square); stated (1 px), the
@@ -502,12 +514,7 @@ TEST(ResponseTest, TheRectanglesPositionIsTakenFromTheDataAndAlphaWithIt) {
 // 0.29 px with chi2/dof 1.8.
 TEST(ResponseTest, ChiSquaresDegreesOfFreedomCountTheGeometryTheDataFixed) {
   const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
-  auto made = CentredSetup(1, 3, 6);
-  made.bench.source_sr = made.bench.receiver_sr = 0;
-  made.bench.axis_x_px = 0.8;
-  auto stated = made;
-  stated.bench.axis_x_px = 0;
-  stated.bench.rectangle_sigma_px = 1;
+  const auto [made, stated] = RectangleOffAxis(0.8);
   fitting::FitOptions o;
   o.floor = fitting::Floor::kOff;
   constexpr int kDraws = 200;
@@ -552,12 +559,7 @@ TEST(ResponseTest, ChiSquaresDegreesOfFreedomCountTheGeometryTheDataFixed) {
 // check the stated position, rather than follow an extrapolation.
 TEST(ResponseTest, ARectangleFarFromItsStatedPositionIsNamedNotFollowed) {
   const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
-  auto made = CentredSetup(1, 3, 6);
-  made.bench.source_sr = made.bench.receiver_sr = 0;
-  made.bench.axis_x_px = 3;
-  auto stated = made;
-  stated.bench.axis_x_px = 0;
-  stated.bench.rectangle_sigma_px = 1;
+  const auto [made, stated] = RectangleOffAxis(3);
   auto fit = fitting::Fit(MisstatedSamples(*truth, made, stated, 0, 43), fitting::FitOptions{});
   ASSERT_TRUE(fit.ok()) << fit.error().message;
   const auto& x = fit->geometry.rectangle_x;

@@ -46,6 +46,24 @@ struct SampleModel {
   std::vector<double> w;
 };
 
+// The sample stage's error common to a group of points (GeometryUse): per sample its group (-1:
+// none) and the fitted model's slope dS/d(sample angle) there, per group its read-back angle, and
+// the prior's sigma. A group is a consecutive run of samples, so its samples are one span.
+struct StageGroups {
+  std::vector<int> group;
+  std::vector<double> slope;        // value units per degree
+  std::vector<StageOffset> groups;  // read-back angle and size (offsets: the fit's)
+  double prior_deg = 0;
+};
+
+// The options a solve runs with: the caller's, and the sample stage's groups once WithGeometry
+// has them. The constructor is explicit so that no helper drops the groups by taking a
+// FitOptions and passing it on.
+struct SolveOptions : FitOptions {
+  explicit SolveOptions(const FitOptions& f) : FitOptions(f) {}
+  std::shared_ptr<const StageGroups> stage;
+};
+
 // sum_j w_j factor_j D G_j: the model at k = 1 and fixed eta.
 template <typename T>
 T FixedEtaValue(const ModelSpec& model, const SampleModel& sm, const T& width) {
@@ -57,21 +75,23 @@ T FixedEtaValue(const ModelSpec& model, const SampleModel& sm, const T& width) {
 }
 
 // Residual with eta free: the whole model on Jets, over the sample's pairs.
+// `delta` is the sample stage's offset of the sample's group (a constant 0 for none), entering
+// through the slope (StageGroups).
 struct Residual {
   ModelSpec model;
   const SampleModel* sm;
-  double value, inv_sigma, floor_unit;
+  double value, inv_sigma, floor_unit, slope;
 
   template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* eta_raw, const T* floor,
-                  T* r) const {
+                  const T* delta, T* r) const {
     using std::exp;
     const T width = exp(log_width[0]), k = exp(log_k[0]), eta = EtaFromRaw(eta_raw[0]);
     T m(0);
     for (std::size_t j = 0; j < sm->g.size(); ++j)
       m += T(sm->w[j]) *
            MeasurementModel(model, Vec3<T>(sm->g[j].l), Vec3<T>(sm->g[j].v), width, k, eta);
-    r[0] = (m + floor[0] * T(floor_unit) - T(value)) * T(inv_sigma);
+    r[0] = (m + floor[0] * T(floor_unit) + T(slope) * delta[0] - T(value)) * T(inv_sigma);
     return ResidualFinite(r[0]);
   }
 };
@@ -81,13 +101,13 @@ struct Residual {
 struct FixedEtaResidual {
   ModelSpec model;
   const SampleModel* sm;
-  double value, inv_sigma, floor_unit;
+  double value, inv_sigma, floor_unit, slope;
 
   template <typename T>
-  bool operator()(const T* log_width, const T* log_k, const T* floor, T* r) const {
+  bool operator()(const T* log_width, const T* log_k, const T* floor, const T* delta, T* r) const {
     using std::exp;
     const T m = exp(log_k[0]) * FixedEtaValue(model, *sm, exp(log_width[0]));
-    r[0] = (m + floor[0] * T(floor_unit) - T(value)) * T(inv_sigma);
+    r[0] = (m + floor[0] * T(floor_unit) + T(slope) * delta[0] - T(value)) * T(inv_sigma);
     return ResidualFinite(r[0]);
   }
 };
@@ -95,18 +115,26 @@ struct FixedEtaResidual {
 // All samples in one residual block (eta fixed, no robust loss): the same arithmetic without
 // Ceres' per-block bookkeeping, which dominates the cost of small fits. A robust loss applies
 // per residual block, so with one the samples keep a block each. Point-model samples share the
-// light part of the shadowing per incidence.
+// light part of the shadowing per incidence. One block per group of the sample stage (the
+// group's offset `delta`, through each sample's slope; empty slopes and a constant 0 for none).
 struct BatchFixedEtaResidual {
   ModelSpec model;
   std::span<const SampleModel> sm;
   std::span<const Sample> samples;
+  std::span<const double> slope;
   double floor_unit;
   std::vector<Vec3<double>> lights;   // distinct light directions of point-model samples
   std::vector<std::size_t> light_of;  // per sample, index into lights (point model only)
 
   BatchFixedEtaResidual(const ModelSpec& m, std::span<const SampleModel> models,
-                        std::span<const Sample> s, double floor_scale)
-      : model(m), sm(models), samples(s), floor_unit(floor_scale), light_of(s.size()) {
+                        std::span<const Sample> s, std::span<const double> slopes,
+                        double floor_scale)
+      : model(m),
+        sm(models),
+        samples(s),
+        slope(slopes),
+        floor_unit(floor_scale),
+        light_of(s.size()) {
     for (std::size_t i = 0; i < s.size(); ++i) {
       if (sm[i].mode != 0) continue;
       const Vec3<double>& l = sm[i].g[0].l;
@@ -118,7 +146,7 @@ struct BatchFixedEtaResidual {
   }
 
   template <typename T>
-  bool operator()(const T* log_width, const T* log_k, const T* floor, T* r) const {
+  bool operator()(const T* log_width, const T* log_k, const T* floor, const T* delta, T* r) const {
     using std::exp;
     const T width = exp(log_width[0]), k = exp(log_k[0]);
     std::vector<T> k_shadow_light(lights.size());
@@ -131,7 +159,8 @@ struct BatchFixedEtaResidual {
                   : g0.factor > 0 ? k_shadow_light[light_of[i]] * T(g0.factor) *
                                         DTimesShadowingView(model, g0, width)
                                   : T(0);
-      r[i] = (m + b - T(samples[i].value)) * T(1 / samples[i].sigma);
+      const T shift = slope.empty() ? T(0) : T(slope[i]) * delta[0];
+      r[i] = (m + b + shift - T(samples[i].value)) * T(1 / samples[i].sigma);
       // A step to a width where the model overflows is refused quietly (the trust region
       // shrinks), rather than reported by Ceres as a broken cost function.
       if (!ResidualFinite(r[i])) return false;
@@ -220,6 +249,10 @@ bool Covariance(ceres::Problem& problem, std::vector<double*> blocks, Eigen::Mat
 // moves while its problem is in use (the covariance is computed on the winner's problem).
 struct LocalFit {
   double x[4];  // log width, log k, eta raw, floor (in floor units)
+  // The sample stage's offsets, one per group and a last one held at 0 for samples in none
+  // (degrees); sized before the problem is built, never after (the problem points into it).
+  std::vector<double> delta;
+  std::vector<int> row_sample;  // the sample of each residual row, -1 for a prior's
   double cost = std::numeric_limits<double>::infinity();
   bool converged = false;
   int iterations = 0;
@@ -227,12 +260,31 @@ struct LocalFit {
   std::unique_ptr<ceres::Problem> problem;
 };
 
-// What a solve needs besides the options: the samples' models and the floor's unit.
+// What a solve needs besides the options: the samples' models, the floor's unit and the sample
+// stage's groups (nullptr: none).
 struct Problem {
   std::span<const Sample> samples;
   std::span<const SampleModel> models;
   bool fit_floor = false;
   double floor_unit = 1;  // the floor parameter is floor / floor_unit: O(1) for the solver
+  const StageGroups* stage = nullptr;
+
+  int Groups() const { return stage ? static_cast<int>(stage->groups.size()) : 0; }
+  // The index into LocalFit::delta of sample i's offset (the held 0 for none), and its slope.
+  int DeltaOf(std::size_t i) const {
+    return stage && stage->group[i] >= 0 ? stage->group[i] : Groups();
+  }
+  double SlopeOf(std::size_t i) const { return stage ? stage->slope[i] : 0; }
+};
+
+// The prior of a group's offset: a pseudo-observation of 0 with sigma prior_deg.
+struct PriorResidual {
+  double inv_sigma;
+  template <typename T>
+  bool operator()(const T* delta, T* r) const {
+    r[0] = delta[0] * T(inv_sigma);
+    return true;
+  }
 };
 
 std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, double width, double k,
@@ -243,45 +295,71 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
   f.x[1] = std::log(k);
   f.x[2] = RawFromEta(eta);
   f.x[3] = floor / p.floor_unit;
+  const int groups = p.Groups();
+  f.delta.assign(groups + 1, 0.0);
   f.problem = std::make_unique<ceres::Problem>();
   ceres::Problem* problem = f.problem.get();
   const bool automatic = o.derivatives == Derivatives::kAutomatic;
+  const std::size_t n_samples = p.samples.size();
   if (!o.fit_eta && o.loss == Loss::kNone) {
-    const int n = static_cast<int>(p.samples.size());
-    auto* r = new BatchFixedEtaResidual(o.model, p.models, p.samples, p.floor_unit);
-    ceres::CostFunction* cost =
-        automatic
-            ? static_cast<ceres::CostFunction*>(
-                  new ceres::AutoDiffCostFunction<BatchFixedEtaResidual, ceres::DYNAMIC, 1, 1, 1>(
-                      r, n))
-            : new ceres::NumericDiffCostFunction<BatchFixedEtaResidual, ceres::CENTRAL,
-                                                 ceres::DYNAMIC, 1, 1, 1>(r, ceres::TAKE_OWNERSHIP,
-                                                                          n);
-    problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3]);
+    // One block per consecutive run of samples sharing an offset (the whole set without groups).
+    for (std::size_t a = 0, b = 0; a < n_samples; a = b) {
+      while (b < n_samples && p.DeltaOf(b) == p.DeltaOf(a)) ++b;
+      const std::size_t len = b - a;
+      std::span<const double> slopes;
+      if (p.stage) slopes = std::span<const double>(p.stage->slope).subspan(a, len);
+      auto* r = new BatchFixedEtaResidual(o.model, p.models.subspan(a, len),
+                                          p.samples.subspan(a, len), slopes, p.floor_unit);
+      const int n = static_cast<int>(len);
+      ceres::CostFunction* cost =
+          automatic ? static_cast<ceres::CostFunction*>(
+                          new ceres::AutoDiffCostFunction<BatchFixedEtaResidual, ceres::DYNAMIC, 1,
+                                                          1, 1, 1>(r, n))
+                    : new ceres::NumericDiffCostFunction<BatchFixedEtaResidual, ceres::CENTRAL,
+                                                         ceres::DYNAMIC, 1, 1, 1, 1>(
+                          r, ceres::TAKE_OWNERSHIP, n);
+      problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3], &f.delta[p.DeltaOf(a)]);
+      for (std::size_t i = a; i < b; ++i) f.row_sample.push_back(static_cast<int>(i));
+    }
   }
-  for (std::size_t i = 0; i < p.samples.size() && (o.fit_eta || o.loss != Loss::kNone); ++i) {
+  for (std::size_t i = 0; i < n_samples && (o.fit_eta || o.loss != Loss::kNone); ++i) {
     const Sample& s = p.samples[i];
     ceres::LossFunction* loss = nullptr;
     if (o.loss == Loss::kHuber) loss = new ceres::HuberLoss(o.loss_scale);
     if (o.loss == Loss::kCauchy) loss = new ceres::CauchyLoss(o.loss_scale);
+    double* delta = &f.delta[p.DeltaOf(i)];
     if (o.fit_eta) {
-      auto* r = new Residual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit};
+      auto* r =
+          new Residual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
       ceres::CostFunction* cost =
           automatic
               ? static_cast<ceres::CostFunction*>(
-                    new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1>(r))
-              : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1>(r);
-      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2], &f.x[3]);
+                    new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1, 1>(r))
+              : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1, 1>(r);
+      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2], &f.x[3], delta);
     } else {
-      auto* r = new FixedEtaResidual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit};
+      auto* r = new FixedEtaResidual{o.model,     &p.models[i], s.value,
+                                     1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
       ceres::CostFunction* cost =
           automatic
               ? static_cast<ceres::CostFunction*>(
-                    new ceres::AutoDiffCostFunction<FixedEtaResidual, 1, 1, 1, 1>(r))
-              : new ceres::NumericDiffCostFunction<FixedEtaResidual, ceres::CENTRAL, 1, 1, 1, 1>(r);
-      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[3]);
+                    new ceres::AutoDiffCostFunction<FixedEtaResidual, 1, 1, 1, 1, 1>(r))
+              : new ceres::NumericDiffCostFunction<FixedEtaResidual, ceres::CENTRAL, 1, 1, 1, 1, 1>(
+                    r);
+      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[3], delta);
     }
+    f.row_sample.push_back(static_cast<int>(i));
   }
+  for (int g = 0; g < groups; ++g) {
+    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<PriorResidual, 1, 1>(
+                                  new PriorResidual{1 / p.stage->prior_deg}),
+                              nullptr, &f.delta[g]);
+    f.row_sample.push_back(-1);
+  }
+  // The held 0 is in the problem only where some sample is in no group (Ceres refuses to hold a
+  // block it does not know).
+  if (problem->HasParameterBlock(&f.delta[groups]))
+    problem->SetParameterBlockConstant(&f.delta[groups]);
   if (!p.fit_floor) problem->SetParameterBlockConstant(&f.x[3]);
 
   ceres::Solver::Options so;
@@ -429,6 +507,30 @@ void MoveToFitted(const GeometryUse& g, ResponseSetup& c) {
   c.bench.axis_y_px -= g.rectangle_y.offset * c.rectangle.binning_v;
 }
 
+// The fitted model's point value at a stage position (the nominal pair), without the floor.
+double PointAt(const FitSummary& f, const StagePosition& at) {
+  const auto [l, v] = NominalDirections(at);
+  return MeasurementModel(f.model, l, v, f.width.value, f.scale.value, f.eta.value);
+}
+
+// The fitted model's slopes dS/d(sample stage) and dS/d(arm) at a sample's read-back position
+// (value units per degree), by central differences of the point model: the rectangle's average
+// changes them far less than the angle terms they give. 0, 0 for a sample without a response.
+std::pair<double, double> StageSlopes(const FitSummary& f, const Sample& s) {
+  if (!s.response || !s.response->setup) return {0.0, 0.0};
+  const double h = 0.01;  // deg: the slope over a hundredth of a degree
+  const StagePosition at = s.response->at;
+  StagePosition a = at, b = at;
+  a.sample_deg += h;
+  b.sample_deg -= h;
+  const double d_sample = (PointAt(f, a) - PointAt(f, b)) / (2 * h);
+  a = b = at;
+  a.arm_deg += h;
+  b.arm_deg -= h;
+  const double d_arm = (PointAt(f, a) - PointAt(f, b)) / (2 * h);
+  return {d_sample, d_arm};
+}
+
 }  // namespace
 
 const char* ToString(FitStatus s) {
@@ -476,6 +578,13 @@ double Predict(const FitSummary& fit, const Sample& sample) {
       for (std::size_t j = 0; j < sm.g.size(); ++j)
         value += sm.w[j] * MeasurementModel(fit.model, sm.g[j].l, sm.g[j].v, w, k, eta);
     }
+    // The sample stage's offset of the first group read back at this angle (a sample alone does
+    // not say which visit to the angle it was taken in).
+    for (const StageOffset& g : fit.geometry.sample_stage)
+      if (g.sample_deg == sample.response->at.sample_deg) {
+        value += StageSlopes(fit, sample).first * g.offset_deg;
+        break;
+      }
   }
   return value + fit.floor.value;
 }
@@ -556,8 +665,9 @@ std::vector<ScanPoint> Starts(std::span<const Sample> samples,
   return starts;
 }
 
-// The model's value of every sample at a solution.
-std::vector<double> Predictions(const Problem& p, const FitOptions& o, const FitSummary& out) {
+// The model's value of every sample at a solution (`delta`: the sample stage's offsets).
+std::vector<double> Predictions(const Problem& p, const FitOptions& o, const FitSummary& out,
+                                std::span<const double> delta) {
   std::vector<double> predicted(p.samples.size());
   for (std::size_t i = 0; i < p.samples.size(); ++i) {
     const SampleModel& sm = p.models[i];
@@ -568,7 +678,7 @@ std::vector<double> Predictions(const Problem& p, const FitOptions& o, const Fit
                                         out.scale.value, out.eta.value);
     else
       m = out.scale.value * FixedEtaValue(o.model, sm, out.width.value);
-    predicted[i] = m + out.floor.value;
+    predicted[i] = m + out.floor.value + p.SlopeOf(i) * delta[p.DeltaOf(i)];
   }
   return predicted;
 }
@@ -582,9 +692,9 @@ void SetInformation(FitSummary& out) {
   out.bic = out.chi2 + p * std::log(double(out.n_points));
 }
 
-// Residuals, chi2 and the information criteria at the solution.
-void FillStatistics(const Problem& p, const FitOptions& o, FitSummary& out) {
-  const std::vector<double> predicted = Predictions(p, o, out);
+// Residuals, chi2 (with the sample stage's priors) and the information criteria at the solution.
+void FillStatistics(const Problem& p, const FitOptions& o, const LocalFit& f, FitSummary& out) {
+  std::vector<double> predicted = Predictions(p, o, out, f.delta);
   out.residuals.clear();
   out.residuals.reserve(p.samples.size());
   out.chi2 = 0;
@@ -593,11 +703,12 @@ void FillStatistics(const Problem& p, const FitOptions& o, FitSummary& out) {
     out.residuals.push_back(r);
     out.chi2 += r * r;
   }
+  for (int g = 0; g < p.Groups(); ++g) out.chi2 += std::pow(f.delta[g] / p.stage->prior_deg, 2);
   SetInformation(out);
-  // The lobe is judged on the surface's model, without the floor.
-  std::vector<double> lobe(predicted);
-  for (double& v : lobe) v -= out.floor.value;
-  out.points_in_lobe = PointsInLobe(p.samples, lobe);
+  // The lobe is judged on the surface's model, without the floor or the stage's offsets.
+  for (std::size_t i = 0; i < p.samples.size(); ++i)
+    predicted[i] -= out.floor.value + p.SlopeOf(i) * f.delta[p.DeltaOf(i)];
+  out.points_in_lobe = PointsInLobe(p.samples, predicted);
 }
 
 // The parameters' sigmas from the covariance of (log width, log k[, eta raw][, floor]) by the
@@ -606,6 +717,9 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
   std::vector<double*> blocks = {winner.x + 0, winner.x + 1};
   if (o.fit_eta) blocks.push_back(winner.x + 2);
   if (p.fit_floor) blocks.push_back(winner.x + 3);
+  // The stage's offsets last: the parameters' covariance is then the marginal one, over them.
+  const int first_delta = static_cast<int>(blocks.size());
+  for (int g = 0; g < p.Groups(); ++g) blocks.push_back(&winner.delta[g]);
   Eigen::MatrixXd c;
   ceres::CRSMatrix j;
   bool cov_ok = Covariance(*winner.problem, blocks, &c, &j);
@@ -633,15 +747,25 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
       const int i = o.fit_eta ? 3 : 2;
       out.floor.sigma = p.floor_unit * std::sqrt(std::max(c(i, i) * inflate, 0.0));
     }
+    out.geometry.sample_stage.clear();
+    for (int g = 0; g < p.Groups(); ++g) {
+      StageOffset so = p.stage->groups[g];
+      so.offset_deg = winner.delta[g];
+      so.sigma_deg = std::sqrt(std::max(c(first_delta + g, first_delta + g) * inflate, 0.0));
+      out.geometry.sample_stage.push_back(so);
+    }
     // The statistical part: the sandwich C J^T D J C, with D_i = (sigma_stat_i / sigma_i)^2 the
-    // share of each sample's variance that is statistical (rows of J are the samples, in order).
-    bool have_stat = j.num_rows == static_cast<int>(p.samples.size());
+    // share of each sample's variance that is statistical (LocalFit::row_sample: a row's sample;
+    // a prior's row is none of it).
+    bool have_stat = j.num_rows == static_cast<int>(winner.row_sample.size());
     for (const Sample& s : p.samples) have_stat = have_stat && s.sigma_stat > 0;
     if (have_stat) {
       const int n = j.num_cols;
       Eigen::MatrixXd m = Eigen::MatrixXd::Zero(n, n);
       for (int r = 0; r < j.num_rows; ++r) {
-        const double d = std::pow(std::min(1.0, p.samples[r].sigma_stat / p.samples[r].sigma), 2);
+        const int i = winner.row_sample[r];
+        if (i < 0) continue;
+        const double d = std::pow(std::min(1.0, p.samples[i].sigma_stat / p.samples[i].sigma), 2);
         for (int a = j.rows[r]; a < j.rows[r + 1]; ++a)
           for (int b = j.rows[r]; b < j.rows[r + 1]; ++b)
             m(j.cols[a], j.cols[b]) += d * j.values[a] * j.values[b];
@@ -719,7 +843,7 @@ double Median(std::vector<double> v) {
 }
 
 // One fit with the floor on or off (o.floor is kOff or kFit).
-Result<FitSummary> FitOnce(std::span<const Sample> samples, const FitOptions& o) {
+Result<FitSummary> FitOnce(std::span<const Sample> samples, const SolveOptions& o) {
   const auto t0 = std::chrono::steady_clock::now();
   // Geometry at the starting (or fixed) eta, computed once for every sample: the scan's.
   std::vector<FixedGeometry> geometry;
@@ -747,7 +871,7 @@ Result<FitSummary> FitOnce(std::span<const Sample> samples, const FitOptions& o)
   };
   std::vector<double> sigmas;
   for (const Sample& s : samples) sigmas.push_back(s.sigma);
-  Problem p{samples, build(*modes, o.eta), o.floor == Floor::kFit, Median(sigmas)};
+  Problem p{samples, build(*modes, o.eta), o.floor == Floor::kFit, Median(sigmas), o.stage.get()};
 
   // Local fits: the caller's start and the half-width estimate always run, then the best scan
   // minima, up to max_local_fits (plus those first two).
@@ -806,7 +930,7 @@ Result<FitSummary> FitOnce(std::span<const Sample> samples, const FitOptions& o)
     out.response.apertures += (*modes)[i] == 2;
     out.response.rays += static_cast<long>(p.models[i].g.size());
   }
-  FillStatistics(p, o, out);
+  FillStatistics(p, o, *winner, out);
   const bool cov_ok = FillUncertainties(*winner, p, o, out);
   Judge(cov_ok, out);
   out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -819,9 +943,9 @@ namespace {
 
 // Fit's work once the input is valid: with Floor::kAuto, the fits without and with a floor and
 // BIC's choice between them.
-Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const FitOptions& o) {
+Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const SolveOptions& o) {
   if (o.floor != Floor::kAuto) return FitOnce(samples, o);
-  FitOptions off = o, on = o;
+  SolveOptions off = o, on = o;
   off.floor = Floor::kOff;
   on.floor = Floor::kFit;
   // A background measured at every point and subtracted leaves nothing for a floor to stand for.
@@ -859,32 +983,6 @@ Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const FitOption
   return std::move(*chosen);
 }
 
-// The fitted model's point value at a stage position (the nominal pair), plus the floor.
-double PointAt(const FitSummary& f, const StagePosition& at) {
-  const auto [l, v] = NominalDirections(at);
-  return MeasurementModel(f.model, l, v, f.width.value, f.scale.value, f.eta.value);
-}
-
-// A sample's angle read-back term: angle_sigma * |dS/d(stage)| for the sample and arm stages, by
-// central differences of the fitted point model (the rectangle's average changes the slope by
-// far less than the term itself).
-double AngleSigma(const FitSummary& f, const Sample& s) {
-  if (!s.response || !s.response->setup) return 0;
-  const double sigma = s.response->setup->bench.angle_sigma_deg;
-  if (!(sigma > 0)) return 0;
-  const double h = 0.01;  // deg: the slope over a hundredth of a degree
-  const StagePosition at = s.response->at;
-  StagePosition a = at, b = at;
-  a.sample_deg += h;
-  b.sample_deg -= h;
-  const double d_sample = (PointAt(f, a) - PointAt(f, b)) / (2 * h);
-  a = b = at;
-  a.arm_deg += h;
-  b.arm_deg -= h;
-  const double d_arm = (PointAt(f, a) - PointAt(f, b)) / (2 * h);
-  return sigma * std::hypot(d_sample, d_arm);
-}
-
 // The samples with every response's setup changed by `change` (one copy per distinct setup).
 template <typename Change>
 std::vector<Sample> WithSetupChanged(std::span<const Sample> samples, Change change) {
@@ -904,7 +1002,7 @@ std::vector<Sample> WithSetupChanged(std::span<const Sample> samples, Change cha
 }
 
 // A local refit from `fit`'s solution, its floor choice kept (nullopt when it does not converge).
-std::optional<FitSummary> Refit(std::span<const Sample> samples, FitOptions o,
+std::optional<FitSummary> Refit(std::span<const Sample> samples, SolveOptions o,
                                 const FitSummary& fit) {
   o.floor = fit.floor_fitted ? Floor::kFit : Floor::kOff;
   o.initial_width = fit.width.value;
@@ -919,9 +1017,9 @@ std::optional<FitSummary> Refit(std::span<const Sample> samples, FitOptions o,
 // robust loss weighs like least squares, and a robust refit of a setup moved by a whole pixel
 // leaves residuals of many sigma, where Huber's reweighting converges linearly (hundreds of
 // iterations in CI's demo) and measures the loss's response to outliers, not the derivative.
-std::optional<FitSummary> MovedRefit(std::span<const Sample> moved, const FitOptions& o,
+std::optional<FitSummary> MovedRefit(std::span<const Sample> moved, const SolveOptions& o,
                                      const FitSummary& fit) {
-  FitOptions ls = o;
+  SolveOptions ls = o;
   ls.loss = Loss::kNone;
   return Refit(moved, ls, fit);
 }
@@ -939,9 +1037,10 @@ std::optional<FitSummary> MovedRefit(std::span<const Sample> moved, const FitOpt
 // mu beyond 1.5 steps, or a chi-square not convex along u, leaves the prior alone (and says so),
 // as does a quantity probed one way only, which is then linear in it.
 template <typename Moved>
-std::optional<NuisanceUse> ProfileAt(const Moved& moved, const FitOptions& o, const FitSummary& fit,
-                                     const FitSummary& base, double at, double step, double prior,
-                                     std::string* why_not, double* estimate = nullptr) {
+std::optional<NuisanceUse> ProfileAt(const Moved& moved, const SolveOptions& o,
+                                     const FitSummary& fit, const FitSummary& base, double at,
+                                     double step, double prior, std::string* why_not,
+                                     double* estimate = nullptr) {
   std::optional<FitSummary> centre, up, down;
   if (at == 0) {
     centre = base;
@@ -1011,7 +1110,7 @@ std::optional<NuisanceUse> ProfileAt(const Moved& moved, const FitOptions& o, co
 // beyond themselves, they are taken again about that (Newton's iteration on the data's
 // parabola), up to four times; should they not settle, the first profile stands.
 template <typename Moved>
-std::optional<NuisanceUse> Profile(const Moved& moved, const FitOptions& o, const FitSummary& fit,
+std::optional<NuisanceUse> Profile(const Moved& moved, const SolveOptions& o, const FitSummary& fit,
                                    const FitSummary& base, double prior, std::string* why_not) {
   auto first = ProfileAt(moved, o, fit, base, 0, prior, prior, why_not);
   if (!first || !first->fitted || first->offset_sigma >= prior / 4) return first;
@@ -1087,15 +1186,31 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   GeometryUse g;
   g.stated = true;
   std::ostringstream note;
-  // Per point: the angle read-back, through each sample's sigma.
+  // The angle read-back: the arm's per point, through each sample's sigma; the sample stage's per
+  // group of points taken without moving it, as an offset of the solve (StageGroups).
+  SolveOptions so(o);
   double angle_part = 0;
   std::vector<Sample> widened;
   if (b.angle_sigma_deg > 0) {
+    const double a_sigma = b.angle_sigma_deg;
+    auto stage = std::make_shared<StageGroups>();
+    stage->prior_deg = a_sigma;
+    stage->group.assign(samples.size(), -1);
+    stage->slope.assign(samples.size(), 0.0);
     widened.assign(samples.begin(), samples.end());
-    for (Sample& s : widened) {
-      const double a = AngleSigma(fit, s);
-      g.angle_max_fraction = std::max(g.angle_max_fraction, a / s.sigma);
-      s.sigma = std::hypot(s.sigma, a);
+    for (std::size_t i = 0; i < widened.size(); ++i) {
+      Sample& s = widened[i];
+      if (!s.response || !s.response->setup) continue;
+      const auto [d_sample, d_arm] = StageSlopes(fit, s);
+      g.angle_max_fraction =
+          std::max(g.angle_max_fraction, a_sigma * std::hypot(d_sample, d_arm) / s.sigma);
+      s.sigma = std::hypot(s.sigma, a_sigma * d_arm);
+      const double at = s.response->at.sample_deg;
+      if (i == 0 || stage->group[i - 1] < 0 || stage->groups.back().sample_deg != at)
+        stage->groups.push_back({at, 0, 0, a_sigma});
+      ++stage->groups.back().points;
+      stage->group[i] = static_cast<int>(stage->groups.size()) - 1;
+      stage->slope[i] = d_sample;
     }
     const double tol = o.response_tolerance;
     const double adds = std::hypot(1.0, g.angle_max_fraction) - 1;
@@ -1103,23 +1218,32 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
          << 100 * g.angle_max_fraction << " % of a sample's sigma (adding " << 100 * adds
          << " % in quadrature)";
     if (adds > tol * tol / 2) {
-      auto again = FitWithFloor(widened, o);
+      SolveOptions with_stage(o);
+      with_stage.stage = stage;
+      auto again = FitWithFloor(widened, with_stage);
       if (!again.ok()) return again.error();
       if (again->status != FitStatus::kFailed) {
         const std::string floor_choice = fit.floor_choice;
         fit = std::move(again).value();
         if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
         g.angle_in_fit = true;
-        // Its share of the width's sigma: the sigma with and without it in the weights, both
-        // uninflated by chi-square (the fit without it may have been inflated by the very
-        // scatter it explains).
-        FitOptions plain = o;
-        plain.inflate_by_reduced_chi2 = false;
-        const auto with = Refit(widened, plain, fit), without = Refit(samples, plain, fit);
+        so = with_stage;
+        // Its share of the width's sigma: the sigma with and without it, both uninflated by
+        // chi-square (the fit without it may have been inflated by the very scatter it explains).
+        SolveOptions plain = so, plain_without(o);
+        plain.inflate_by_reduced_chi2 = plain_without.inflate_by_reduced_chi2 = false;
+        const auto with = Refit(widened, plain, fit), without = Refit(samples, plain_without, fit);
         if (with && without)
           angle_part = std::sqrt(std::max(0.0, with->width.sigma * with->width.sigma -
                                                    without->width.sigma * without->width.sigma));
-        note << ", in the samples' sigma";
+        double largest = 0;  // the largest offset, in its prior's sigma
+        for (const StageOffset& so_g : fit.geometry.sample_stage)
+          largest = std::max(largest, std::abs(so_g.offset_deg) / a_sigma);
+        note << ", in the fit: the arm's in each sample's sigma, the sample stage's as one offset "
+                "for each of "
+             << stage->groups.size()
+             << " groups of points taken without moving it (the largest found: " << largest
+             << " of its prior's sigma)";
       }
     } else {
       note << ", left out (the fit takes it in above " << 100 * tol * tol / 2 << " %)";
@@ -1139,13 +1263,14 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
     // fit is poor.
     note << "; thickness and rectangle: not computed (the data do not constrain the width)";
     g.note = note.str();
+    g.sample_stage = fit.geometry.sample_stage;
     fit.width.sigma_geometry = angle_part;
     fit.geometry = g;
     return fit;
   }
   const std::span<const Sample> used = g.angle_in_fit ? std::span<const Sample>(widened) : samples;
   if (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0) {
-    FitOptions ls = o;
+    SolveOptions ls = so;
     ls.loss = Loss::kNone;
     base = Refit(used, ls, fit);
   }
@@ -1167,8 +1292,8 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
     std::string why_not;
     std::optional<NuisanceUse> n;
     if (base)
-      n = Profile(moving([](ResponseSetup& c, double d) { c.thickness_mm += d; }), o, fit, *base, t,
-                  &why_not);
+      n = Profile(moving([](ResponseSetup& c, double d) { c.thickness_mm += d; }), so, fit, *base,
+                  t, &why_not);
     if (n) {
       g.thickness = *n;
       g.width_thickness = n->width_sigma;
@@ -1194,7 +1319,7 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
                          else
                            c.bench.axis_y_px -= d * c.rectangle.binning_v;
                        }),
-                       o, fit, *base, p, &why_not);
+                       so, fit, *base, p, &why_not);
       if (!n) {
         all = false;
         break;
@@ -1219,7 +1344,7 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   // profile's shift and the note says so.
   if (g.thickness.fitted || g.rectangle_x.fitted || g.rectangle_y.fitted) {
     auto best =
-        Refit(WithSetupChanged(used, [&g](ResponseSetup& c) { MoveToFitted(g, c); }), o, fit);
+        Refit(WithSetupChanged(used, [&g](ResponseSetup& c) { MoveToFitted(g, c); }), so, fit);
     if (best) {
       const std::string floor_choice = fit.floor_choice;
       fit = std::move(best).value();
@@ -1239,6 +1364,7 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   fit.width.sigma = std::hypot(fit.width.sigma, common);
   fit.width.sigma_geometry = std::hypot(angle_part, common);
   g.note = note.str();
+  g.sample_stage = fit.geometry.sample_stage;
   fit.geometry = g;
   return fit;
 }
@@ -1253,7 +1379,7 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& o) {
                            " is a transmission model (Sun 2008 gives no BRDF): it cannot fit "
                            "reflection samples; fit beckmann, ggx or phong");
   const auto t0 = std::chrono::steady_clock::now();
-  auto fit = FitWithFloor(samples, o);
+  auto fit = FitWithFloor(samples, SolveOptions(o));
   if (!fit.ok()) return fit;
   auto out = WithGeometry(samples, o, std::move(fit).value());
   if (out.ok())

@@ -110,12 +110,28 @@ struct NuisanceUse {
   double width_sigma = 0;   // the width's sigma from the offset's
 };
 
+// The sample stage's error over one group of points taken without moving it (an incidence's
+// sweep moves the arm alone): its read-back angle, and the offset from it the fit found.
+struct StageOffset {
+  double sample_deg = 0;  // the read-back angle the group shares
+  int points = 0;         // how many samples
+  double offset_deg = 0;  // the posterior's most probable offset (0 a priori)
+  double sigma_deg = 0;   // its sigma (the prior's, angle_sigma_deg, where the data say nothing)
+};
+
 // How the geometry's uncertainties (BenchOptics: angle_sigma_deg, thickness_sigma_mm,
 // rectangle_sigma_px, stated with the samples' instrument response) entered a fit. The angle
-// read-back is independent from point to point: it enters each sample's sigma as
-// angle_sigma * |dS/d(stage angle)| (both stages; the slope of the fitted model at the point),
-// and the fit is redone with it when it changes some sample's sigma by more than
-// response_tolerance^2 / 2 (a tenth of sigma in quadrature at the default). The thickness and
+// read-back has two parts. The arm's is independent from point to point (each point moves it):
+// it enters each sample's sigma as angle_sigma * |dS/d(arm)|. The sample stage's is common to
+// the points taken between two of its moves (a consecutive run of samples with one read-back
+// sample angle): one offset per such group, a nuisance parameter of the solve itself with the
+// prior N(0, angle_sigma^2), entering each of the group's samples as dS/d(sample) times it
+// (linear: angle_sigma is a few ten-thousandths of a degree). Its prior's term is in chi2, so it
+// takes no degree of freedom (the minimised chi2 is then the generalised one of the group's
+// correlated errors, chi-square with n - p degrees of freedom). Both slopes are the fitted
+// model's at the point, and the fit is redone with them when the angle term would change some
+// sample's sigma by more than response_tolerance^2 / 2 (a tenth of sigma in quadrature at the
+// default). The thickness and
 // the rectangle's position are common to a run: an error in them moves every point together, so
 // they are nuisance parameters (NuisanceUse), profiled by least-squares refits with each moved
 // a step either way (the thickness by its sigma, the rectangle by a pixel along x and along y)
@@ -126,13 +142,14 @@ struct NuisanceUse {
 // note. They are not computed for an unconstrained fit (no width to budget; the refits are most
 // of a response fit's time).
 struct GeometryUse {
-  bool stated = false;                   // the samples carry a response: the geometry is known
-  double angle_max_fraction = 0;         // the largest angle term over a sample's sigma
-  bool angle_in_fit = false;             // the fit was redone with the angle term in the sigmas
-  double width_thickness = 0;            // the width's sigma from the thickness
-  double width_rectangle = 0;            // the width's sigma from the rectangle (x and y together)
-  NuisanceUse thickness;                 // mm
-  NuisanceUse rectangle_x, rectangle_y;  // sensor pixels
+  bool stated = false;                    // the samples carry a response: the geometry is known
+  double angle_max_fraction = 0;          // the largest angle term over a sample's sigma
+  bool angle_in_fit = false;              // the fit was redone with the angle terms in it
+  std::vector<StageOffset> sample_stage;  // the sample stage's offsets, when angle_in_fit
+  double width_thickness = 0;             // the width's sigma from the thickness
+  double width_rectangle = 0;             // the width's sigma from the rectangle (x and y together)
+  NuisanceUse thickness;                  // mm
+  NuisanceUse rectangle_x, rectangle_y;   // sensor pixels
   bool left_out = false;  // a refit did not converge: its part is not in sigma (note)
   std::string note;       // what was used and what was left out, in words
 };
@@ -167,7 +184,9 @@ struct FitSummary {
   // The geometry's nuisance parameters the data fixed (GeometryUse), each counted as
   // 1 - s^2 / sigma_prior^2 of a parameter: the share of its prior the data replaced.
   double n_nuisance = 0;
-  double chi2 = 0;                // sum of squared normalised residuals (without the robust loss)
+  // The sum of squared normalised residuals (without the robust loss), plus the sample stage's
+  // prior terms (offset / angle_sigma)^2 where GeometryUse::sample_stage is fitted.
+  double chi2 = 0;
   double reduced_chi2 = 0;        // chi2 / (n_points - n_params - n_nuisance)
   double aic = 0;                 // chi2 + 2 p, p = n_params + n_nuisance
   double bic = 0;                 // chi2 + p ln n
@@ -186,7 +205,8 @@ Result<FitSummary> Fit(std::span<const Sample> samples, const FitOptions& option
 
 // The fitted model's prediction of a sample's value: through the sample's response where the fit
 // would use it (FitOptions' default tolerance), at the geometry the fit found (GeometryUse's
-// fitted offsets), plus the floor.
+// fitted offsets, and the sample stage's offset of the first group read back at the sample's
+// angle), plus the floor.
 double Predict(const FitSummary& fit, const Sample& s);
 
 // Half-width at half maximum of the lobe, turned into an alpha-equivalent start (or nullopt when

@@ -24,6 +24,12 @@ inline nlohmann::json ToJson(const FitSummary& f) {
                           {"width_shift", n.width_shift},
                           {"width_sigma", n.width_sigma}};
   };
+  nlohmann::json stage = nlohmann::json::array();
+  for (const StageOffset& g : f.geometry.sample_stage)
+    stage.push_back({{"sample_deg", g.sample_deg},
+                     {"points", g.points},
+                     {"offset_deg", g.offset_deg},
+                     {"sigma_deg", g.sigma_deg}});
   return {{"model", Describe(f.model)},
           {"family", Name(f.model.family)},
           {"status", ToString(f.status)},
@@ -62,6 +68,7 @@ inline nlohmann::json ToJson(const FitSummary& f) {
             {"thickness_mm", nuisance(f.geometry.thickness)},
             {"rectangle_x_px", nuisance(f.geometry.rectangle_x)},
             {"rectangle_y_px", nuisance(f.geometry.rectangle_y)},
+            {"sample_stage", stage},
             {"note", f.geometry.note}}},
           {"seconds", f.seconds}};
 }

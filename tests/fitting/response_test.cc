@@ -333,21 +333,27 @@ TEST(ResponseTest, AFitThroughTheResponseRecoversTheTruthAndThePointModelIsBiase
 // Samples of a 1 x 3 mm rectangle made on a bench that differs from the one the samples state:
 // the values come from `made` at stage angles moved by N(0, jitter_deg) each, while the samples
 // carry `stated` and the nominal angles. 0.2 % noise, incidences 0, 30, 60.
+// `jitter_deg`: the stages' errors against their read-back, as on the bench: the arm's drawn per
+// point, the sample stage's once per incidence (its sweep moves the arm alone); the sample
+// stage's draws are appended to `sample_errors` when given.
 std::vector<fitting::Sample> MisstatedSamples(const sim::GroundTruth& truth,
                                               const fitting::ResponseSetup& made,
                                               const fitting::ResponseSetup& stated,
                                               double jitter_deg, std::uint64_t seed,
                                               std::vector<double> incidences = {0, 30, 60},
-                                              double step_deg = 2.5) {
+                                              double step_deg = 2.5,
+                                              std::vector<double>* sample_errors = nullptr) {
   auto setup = std::make_shared<const fitting::ResponseSetup>(stated);
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> noise(0, 1);
   std::vector<fitting::Sample> out;
   for (double ti : incidences) {
+    const double sample_error = jitter_deg * noise(rng);
+    if (sample_errors) sample_errors->push_back(sample_error);
     for (double off = -20; off <= 20; off += step_deg) {
       const auto at = At(ti, off);
       auto true_at = at;
-      true_at.sample_deg += jitter_deg * noise(rng);
+      true_at.sample_deg += sample_error;
       true_at.arm_deg += jitter_deg * noise(rng);
       auto r = fitting::ComputeResponse(made, true_at);
       if (!r.ok()) continue;
@@ -363,10 +369,10 @@ std::vector<fitting::Sample> MisstatedSamples(const sim::GroundTruth& truth,
   return out;
 }
 
-// The angle read-back (per point): values measured at angles 0.05 deg off the read-back ones
-// scatter by the slope times 0.05 deg, several times the 0.2 % noise on ground glass's flanks. Not
-// stated, the fit calls the true model poor; stated, chi-square is honest again and alpha's
-// interval covers the truth.
+// The angle read-back: values measured at angles 0.05 deg off the read-back ones scatter by the
+// slope times 0.05 deg, several times the 0.2 % noise on ground glass's flanks. Not stated, the
+// fit calls the true model poor; stated, chi-square is honest again and alpha's interval covers
+// the truth.
 TEST(ResponseTest, TheAngleReadBackEntersEachSamplesSigmaThroughTheSlope) {
   const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
   auto made = CentredSetup(1, 3, 6);
@@ -388,6 +394,63 @@ TEST(ResponseTest, TheAngleReadBackEntersEachSamplesSigmaThroughTheSlope) {
     covered += std::abs(told->width.value - 0.344) < 2 * told->width.sigma;
   }
   EXPECT_GE(covered, 4);
+}
+
+// The sample stage's error is common to an incidence's sweep (the arm moves, the sample stage does
+// not), so it moves the sweep's points together: one offset per incidence, a parameter of the fit
+// with the stated sigma as its prior, not a term of each point's sigma. Over 60 draws of three
+// incidences, 0.1 deg errors on both stages (the flanks' slope times 0.1 deg is several times the
+// noise): chi-square is chi-square with n - 2 degrees of freedom, the offsets found match the
+// errors drawn within their sigmas, and alpha's pulls have unit spread.
+TEST(ResponseTest, TheSampleStagesErrorIsOneOffsetPerIncidenceSweep) {
+  const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
+  auto made = CentredSetup(1, 3, 6);
+  made.bench.source_sr = made.bench.receiver_sr = 0;
+  auto stated = made;
+  stated.bench.angle_sigma_deg = 0.1;
+  fitting::FitOptions o;
+  constexpr int kDraws = 60;
+  double chi2_dof = 0, width_pull2 = 0, offset_pull2 = 0, offset_sigma = 0;
+  int n = 0, offsets = 0;
+  for (int seed = 0; seed < kDraws; ++seed) {
+    std::vector<double> errors;
+    const auto data =
+        MisstatedSamples(*truth, made, stated, 0.1, 3000 + seed, {0, 30, 60}, 2.5, &errors);
+    auto f = fitting::Fit(data, o);
+    ASSERT_TRUE(f.ok()) << f.error().message;
+    if (!f->ok()) continue;
+    ++n;
+    ASSERT_TRUE(f->geometry.angle_in_fit) << f->geometry.note;
+    const auto& stage = f->geometry.sample_stage;
+    ASSERT_EQ(stage.size(), 3u) << f->geometry.note;
+    for (std::size_t g = 0; g < 3; ++g) {
+      EXPECT_EQ(stage[g].points, 17);
+      EXPECT_GT(stage[g].sigma_deg, 0);
+      EXPECT_LT(stage[g].sigma_deg, 0.1);
+      offset_pull2 += std::pow((stage[g].offset_deg - errors[g]) / stage[g].sigma_deg, 2);
+      offset_sigma += stage[g].sigma_deg;
+      ++offsets;
+    }
+    // chi2 counts the offsets' priors and no degree of freedom for them.
+    EXPECT_NEAR(f->reduced_chi2, f->chi2 / (f->n_points - f->n_params - f->n_nuisance), 1e-12);
+    chi2_dof += f->reduced_chi2;
+    width_pull2 += std::pow((f->width.value - 0.344) / f->width.sigma, 2);
+  }
+  ASSERT_GE(n, kDraws * 9 / 10);
+  chi2_dof /= n;
+  const double width_rms = std::sqrt(width_pull2 / n);
+  const double offset_rms = std::sqrt(offset_pull2 / offsets);
+  std::cout << "[ info ] " << n << " draws: chi2/dof " << chi2_dof << ", alpha's pull rms "
+            << width_rms << "; the sample stage's offsets: sigma " << offset_sigma / offsets
+            << " deg (prior 0.1), pull rms " << offset_rms << "\n";
+  // The mean of chi2/nu over 60 draws of 49 dof has a standard deviation of about 0.03.
+  EXPECT_NEAR(chi2_dof, 1.0, 0.1);
+  EXPECT_GT(width_rms, 0.7);
+  EXPECT_LT(width_rms, 1.3);
+  EXPECT_GT(offset_rms, 0.75);
+  EXPECT_LT(offset_rms, 1.25);
+  // The data know the offsets better than the prior: the sweep's flanks see them.
+  EXPECT_LT(offset_sigma / offsets, 0.09);
 }
 
 // The thickness (common to the run): a plate 0.6 mm thicker than stated moves every point the

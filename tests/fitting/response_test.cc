@@ -369,16 +369,23 @@ std::vector<fitting::Sample> MisstatedSamples(const sim::GroundTruth& truth,
   return out;
 }
 
+// The centred setup without apertures as made, and as stated with the stages' read-back to
+// `angle_sigma_deg`.
+std::pair<fitting::ResponseSetup, fitting::ResponseSetup> AngleStated(double angle_sigma_deg) {
+  auto made = CentredSetup(1, 3, 6);
+  made.bench.source_sr = made.bench.receiver_sr = 0;
+  auto stated = made;
+  stated.bench.angle_sigma_deg = angle_sigma_deg;
+  return {made, stated};
+}
+
 // The angle read-back: values measured at angles 0.05 deg off the read-back ones scatter by the
 // slope times 0.05 deg, several times the 0.2 % noise on ground glass's flanks. Not stated, the
 // fit calls the true model poor; stated, chi-square is honest again and alpha's interval covers
 // the truth.
 TEST(ResponseTest, TheAngleReadBackEntersEachSamplesSigmaThroughTheSlope) {
   const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
-  auto made = CentredSetup(1, 3, 6);
-  made.bench.source_sr = made.bench.receiver_sr = 0;
-  auto stated = made;
-  stated.bench.angle_sigma_deg = 0.05;
+  const auto [made, stated] = AngleStated(0.05);
   fitting::FitOptions o;
   int covered = 0;
   for (std::uint64_t seed : {21, 22, 23, 24, 25}) {
@@ -404,10 +411,7 @@ TEST(ResponseTest, TheAngleReadBackEntersEachSamplesSigmaThroughTheSlope) {
 // errors drawn within their sigmas, and alpha's pulls have unit spread.
 TEST(ResponseTest, TheSampleStagesErrorIsOneOffsetPerIncidenceSweep) {
   const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
-  auto made = CentredSetup(1, 3, 6);
-  made.bench.source_sr = made.bench.receiver_sr = 0;
-  auto stated = made;
-  stated.bench.angle_sigma_deg = 0.1;
+  const auto [made, stated] = AngleStated(0.1);
   fitting::FitOptions o;
   constexpr int kDraws = 60;
   double chi2_dof = 0, width_pull2 = 0, offset_pull2 = 0, offset_sigma = 0;

@@ -75,12 +75,19 @@ T FixedEtaValue(const ModelSpec& model, const SampleModel& sm, const T& width) {
 }
 
 // Residual with eta free: the whole model on Jets, over the sample's pairs.
-// `delta` is the sample stage's offset of the sample's group (a constant 0 for none), entering
-// through the slope (StageGroups).
+// `delta` is the sample stage's offset of the sample's group, entering through the slope
+// (StageGroups); a sample in no group has the overload without it (no derivative to carry).
 struct Residual {
   ModelSpec model;
   const SampleModel* sm;
   double value, inv_sigma, floor_unit, slope;
+
+  template <typename T>
+  bool operator()(const T* log_width, const T* log_k, const T* eta_raw, const T* floor,
+                  T* r) const {
+    const T zero(0);
+    return (*this)(log_width, log_k, eta_raw, floor, &zero, r);
+  }
 
   template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* eta_raw, const T* floor,
@@ -104,6 +111,12 @@ struct FixedEtaResidual {
   double value, inv_sigma, floor_unit, slope;
 
   template <typename T>
+  bool operator()(const T* log_width, const T* log_k, const T* floor, T* r) const {
+    const T zero(0);
+    return (*this)(log_width, log_k, floor, &zero, r);
+  }
+
+  template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* floor, const T* delta, T* r) const {
     using std::exp;
     const T m = exp(log_k[0]) * FixedEtaValue(model, *sm, exp(log_width[0]));
@@ -116,7 +129,7 @@ struct FixedEtaResidual {
 // Ceres' per-block bookkeeping, which dominates the cost of small fits. A robust loss applies
 // per residual block, so with one the samples keep a block each. Point-model samples share the
 // light part of the shadowing per incidence. One block per group of the sample stage (the
-// group's offset `delta`, through each sample's slope; empty slopes and a constant 0 for none).
+// group's offset `delta`, through each sample's slope), and one per run of samples in none.
 struct BatchFixedEtaResidual {
   ModelSpec model;
   std::span<const SampleModel> sm;
@@ -146,6 +159,12 @@ struct BatchFixedEtaResidual {
   }
 
   template <typename T>
+  bool operator()(const T* log_width, const T* log_k, const T* floor, T* r) const {
+    const T zero(0);
+    return (*this)(log_width, log_k, floor, &zero, r);
+  }
+
+  template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* floor, const T* delta, T* r) const {
     using std::exp;
     const T width = exp(log_width[0]), k = exp(log_k[0]);
@@ -159,7 +178,7 @@ struct BatchFixedEtaResidual {
                   : g0.factor > 0 ? k_shadow_light[light_of[i]] * T(g0.factor) *
                                         DTimesShadowingView(model, g0, width)
                                   : T(0);
-      const T shift = slope.empty() ? T(0) : T(slope[i]) * delta[0];
+      const T shift = slope.empty() ? T(0) : T(slope[i]) * delta[0];  // empty: in no group
       r[i] = (m + b + shift - T(samples[i].value)) * T(1 / samples[i].sigma);
       // A step to a width where the model overflows is refused quietly (the trust region
       // shrinks), rather than reported by Ceres as a broken cost function.
@@ -249,8 +268,9 @@ bool Covariance(ceres::Problem& problem, std::vector<double*> blocks, Eigen::Mat
 // moves while its problem is in use (the covariance is computed on the winner's problem).
 struct LocalFit {
   double x[4];  // log width, log k, eta raw, floor (in floor units)
-  // The sample stage's offsets, one per group and a last one held at 0 for samples in none
-  // (degrees); sized before the problem is built, never after (the problem points into it).
+  // The sample stage's offsets (degrees), one per group and a last one for samples in none,
+  // always 0 and not in the problem; sized before the problem is built, never after (the
+  // problem points into it).
   std::vector<double> delta;
   std::vector<int> row_sample;  // the sample of each residual row, -1 for a prior's
   double cost = std::numeric_limits<double>::infinity();
@@ -270,10 +290,12 @@ struct Problem {
   const StageGroups* stage = nullptr;
 
   int Groups() const { return stage ? static_cast<int>(stage->groups.size()) : 0; }
-  // The index into LocalFit::delta of sample i's offset (the held 0 for none), and its slope.
+  // The index into LocalFit::delta of sample i's offset (the last, always 0, for none), and its
+  // slope.
   int DeltaOf(std::size_t i) const {
     return stage && stage->group[i] >= 0 ? stage->group[i] : Groups();
   }
+  bool InGroup(std::size_t i) const { return DeltaOf(i) < Groups(); }
   double SlopeOf(std::size_t i) const { return stage ? stage->slope[i] : 0; }
 };
 
@@ -311,14 +333,23 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
       auto* r = new BatchFixedEtaResidual(o.model, p.models.subspan(a, len),
                                           p.samples.subspan(a, len), slopes, p.floor_unit);
       const int n = static_cast<int>(len);
-      ceres::CostFunction* cost =
-          automatic ? static_cast<ceres::CostFunction*>(
-                          new ceres::AutoDiffCostFunction<BatchFixedEtaResidual, ceres::DYNAMIC, 1,
-                                                          1, 1, 1>(r, n))
-                    : new ceres::NumericDiffCostFunction<BatchFixedEtaResidual, ceres::CENTRAL,
-                                                         ceres::DYNAMIC, 1, 1, 1, 1>(
-                          r, ceres::TAKE_OWNERSHIP, n);
-      problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3], &f.delta[p.DeltaOf(a)]);
+      using Batch = BatchFixedEtaResidual;
+      if (p.InGroup(a)) {
+        ceres::CostFunction* cost =
+            automatic
+                ? static_cast<ceres::CostFunction*>(
+                      new ceres::AutoDiffCostFunction<Batch, ceres::DYNAMIC, 1, 1, 1, 1>(r, n))
+                : new ceres::NumericDiffCostFunction<Batch, ceres::CENTRAL, ceres::DYNAMIC, 1, 1, 1,
+                                                     1>(r, ceres::TAKE_OWNERSHIP, n);
+        problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3], &f.delta[p.DeltaOf(a)]);
+      } else {
+        ceres::CostFunction* cost =
+            automatic ? static_cast<ceres::CostFunction*>(
+                            new ceres::AutoDiffCostFunction<Batch, ceres::DYNAMIC, 1, 1, 1>(r, n))
+                      : new ceres::NumericDiffCostFunction<Batch, ceres::CENTRAL, ceres::DYNAMIC, 1,
+                                                           1, 1>(r, ceres::TAKE_OWNERSHIP, n);
+        problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3]);
+      }
       for (std::size_t i = a; i < b; ++i) f.row_sample.push_back(static_cast<int>(i));
     }
   }
@@ -327,27 +358,42 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
     ceres::LossFunction* loss = nullptr;
     if (o.loss == Loss::kHuber) loss = new ceres::HuberLoss(o.loss_scale);
     if (o.loss == Loss::kCauchy) loss = new ceres::CauchyLoss(o.loss_scale);
+    const bool grouped = p.InGroup(i);
     double* delta = &f.delta[p.DeltaOf(i)];
+    ceres::CostFunction* cost = nullptr;
     if (o.fit_eta) {
       auto* r =
           new Residual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
-      ceres::CostFunction* cost =
-          automatic
-              ? static_cast<ceres::CostFunction*>(
-                    new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1, 1>(r))
-              : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1, 1>(r);
-      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[2], &f.x[3], delta);
+      if (grouped)
+        cost =
+            automatic
+                ? static_cast<ceres::CostFunction*>(
+                      new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1, 1>(r))
+                : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1, 1>(r);
+      else
+        cost = automatic
+                   ? static_cast<ceres::CostFunction*>(
+                         new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1>(r))
+                   : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1>(r);
     } else {
       auto* r = new FixedEtaResidual{o.model,     &p.models[i], s.value,
                                      1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
-      ceres::CostFunction* cost =
-          automatic
-              ? static_cast<ceres::CostFunction*>(
-                    new ceres::AutoDiffCostFunction<FixedEtaResidual, 1, 1, 1, 1, 1>(r))
-              : new ceres::NumericDiffCostFunction<FixedEtaResidual, ceres::CENTRAL, 1, 1, 1, 1, 1>(
-                    r);
-      problem->AddResidualBlock(cost, loss, &f.x[0], &f.x[1], &f.x[3], delta);
+      using Fixed = FixedEtaResidual;
+      if (grouped)
+        cost = automatic
+                   ? static_cast<ceres::CostFunction*>(
+                         new ceres::AutoDiffCostFunction<Fixed, 1, 1, 1, 1, 1>(r))
+                   : new ceres::NumericDiffCostFunction<Fixed, ceres::CENTRAL, 1, 1, 1, 1, 1>(r);
+      else
+        cost = automatic ? static_cast<ceres::CostFunction*>(
+                               new ceres::AutoDiffCostFunction<Fixed, 1, 1, 1, 1>(r))
+                         : new ceres::NumericDiffCostFunction<Fixed, ceres::CENTRAL, 1, 1, 1, 1>(r);
     }
+    std::vector<double*> blocks = {&f.x[0], &f.x[1]};
+    if (o.fit_eta) blocks.push_back(&f.x[2]);
+    blocks.push_back(&f.x[3]);
+    if (grouped) blocks.push_back(delta);
+    problem->AddResidualBlock(cost, loss, blocks);
     f.row_sample.push_back(static_cast<int>(i));
   }
   for (int g = 0; g < groups; ++g) {
@@ -356,10 +402,6 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
                               nullptr, &f.delta[g]);
     f.row_sample.push_back(-1);
   }
-  // The held 0 is in the problem only where some sample is in no group (Ceres refuses to hold a
-  // block it does not know).
-  if (problem->HasParameterBlock(&f.delta[groups]))
-    problem->SetParameterBlockConstant(&f.delta[groups]);
   if (!p.fit_floor) problem->SetParameterBlockConstant(&f.x[3]);
 
   ceres::Solver::Options so;

@@ -309,6 +309,20 @@ struct PriorResidual {
   }
 };
 
+// A cost of `r` (owned) with automatic or numeric (central) derivatives: kResiduals residuals
+// (ceres::DYNAMIC: n of them) over parameter blocks of the sizes kBlocks.
+template <typename F, int kResiduals, int... kBlocks>
+ceres::CostFunction* MakeCost(F* r, bool automatic, int n = 1) {
+  if constexpr (kResiduals == ceres::DYNAMIC) {
+    if (automatic) return new ceres::AutoDiffCostFunction<F, kResiduals, kBlocks...>(r, n);
+    return new ceres::NumericDiffCostFunction<F, ceres::CENTRAL, kResiduals, kBlocks...>(
+        r, ceres::TAKE_OWNERSHIP, n);
+  } else {
+    if (automatic) return new ceres::AutoDiffCostFunction<F, kResiduals, kBlocks...>(r);
+    return new ceres::NumericDiffCostFunction<F, ceres::CENTRAL, kResiduals, kBlocks...>(r);
+  }
+}
+
 std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, double width, double k,
                                     double eta, double floor) {
   auto fit = std::make_unique<LocalFit>();
@@ -334,22 +348,12 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
                                           p.samples.subspan(a, len), slopes, p.floor_unit);
       const int n = static_cast<int>(len);
       using Batch = BatchFixedEtaResidual;
-      if (p.InGroup(a)) {
-        ceres::CostFunction* cost =
-            automatic
-                ? static_cast<ceres::CostFunction*>(
-                      new ceres::AutoDiffCostFunction<Batch, ceres::DYNAMIC, 1, 1, 1, 1>(r, n))
-                : new ceres::NumericDiffCostFunction<Batch, ceres::CENTRAL, ceres::DYNAMIC, 1, 1, 1,
-                                                     1>(r, ceres::TAKE_OWNERSHIP, n);
-        problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3], &f.delta[p.DeltaOf(a)]);
-      } else {
-        ceres::CostFunction* cost =
-            automatic ? static_cast<ceres::CostFunction*>(
-                            new ceres::AutoDiffCostFunction<Batch, ceres::DYNAMIC, 1, 1, 1>(r, n))
-                      : new ceres::NumericDiffCostFunction<Batch, ceres::CENTRAL, ceres::DYNAMIC, 1,
-                                                           1, 1>(r, ceres::TAKE_OWNERSHIP, n);
-        problem->AddResidualBlock(cost, nullptr, &f.x[0], &f.x[1], &f.x[3]);
-      }
+      if (p.InGroup(a))
+        problem->AddResidualBlock(MakeCost<Batch, ceres::DYNAMIC, 1, 1, 1, 1>(r, automatic, n),
+                                  nullptr, &f.x[0], &f.x[1], &f.x[3], &f.delta[p.DeltaOf(a)]);
+      else
+        problem->AddResidualBlock(MakeCost<Batch, ceres::DYNAMIC, 1, 1, 1>(r, automatic, n),
+                                  nullptr, &f.x[0], &f.x[1], &f.x[3]);
       for (std::size_t i = a; i < b; ++i) f.row_sample.push_back(static_cast<int>(i));
     }
   }
@@ -359,47 +363,29 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
     if (o.loss == Loss::kHuber) loss = new ceres::HuberLoss(o.loss_scale);
     if (o.loss == Loss::kCauchy) loss = new ceres::CauchyLoss(o.loss_scale);
     const bool grouped = p.InGroup(i);
-    double* delta = &f.delta[p.DeltaOf(i)];
     ceres::CostFunction* cost = nullptr;
     if (o.fit_eta) {
       auto* r =
           new Residual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
-      if (grouped)
-        cost =
-            automatic
-                ? static_cast<ceres::CostFunction*>(
-                      new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1, 1>(r))
-                : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1, 1>(r);
-      else
-        cost = automatic
-                   ? static_cast<ceres::CostFunction*>(
-                         new ceres::AutoDiffCostFunction<Residual, 1, 1, 1, 1, 1>(r))
-                   : new ceres::NumericDiffCostFunction<Residual, ceres::CENTRAL, 1, 1, 1, 1, 1>(r);
+      cost = grouped ? MakeCost<Residual, 1, 1, 1, 1, 1, 1>(r, automatic)
+                     : MakeCost<Residual, 1, 1, 1, 1, 1>(r, automatic);
     } else {
       auto* r = new FixedEtaResidual{o.model,     &p.models[i], s.value,
                                      1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
-      using Fixed = FixedEtaResidual;
-      if (grouped)
-        cost = automatic
-                   ? static_cast<ceres::CostFunction*>(
-                         new ceres::AutoDiffCostFunction<Fixed, 1, 1, 1, 1, 1>(r))
-                   : new ceres::NumericDiffCostFunction<Fixed, ceres::CENTRAL, 1, 1, 1, 1, 1>(r);
-      else
-        cost = automatic ? static_cast<ceres::CostFunction*>(
-                               new ceres::AutoDiffCostFunction<Fixed, 1, 1, 1, 1>(r))
-                         : new ceres::NumericDiffCostFunction<Fixed, ceres::CENTRAL, 1, 1, 1, 1>(r);
+      cost = grouped ? MakeCost<FixedEtaResidual, 1, 1, 1, 1, 1>(r, automatic)
+                     : MakeCost<FixedEtaResidual, 1, 1, 1, 1>(r, automatic);
     }
     std::vector<double*> blocks = {&f.x[0], &f.x[1]};
     if (o.fit_eta) blocks.push_back(&f.x[2]);
     blocks.push_back(&f.x[3]);
-    if (grouped) blocks.push_back(delta);
+    if (grouped) blocks.push_back(&f.delta[p.DeltaOf(i)]);
     problem->AddResidualBlock(cost, loss, blocks);
     f.row_sample.push_back(static_cast<int>(i));
   }
   for (int g = 0; g < groups; ++g) {
-    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<PriorResidual, 1, 1>(
-                                  new PriorResidual{1 / p.stage->prior_deg}),
-                              nullptr, &f.delta[g]);
+    problem->AddResidualBlock(
+        MakeCost<PriorResidual, 1, 1>(new PriorResidual{1 / p.stage->prior_deg}, true), nullptr,
+        &f.delta[g]);
     f.row_sample.push_back(-1);
   }
   if (!p.fit_floor) problem->SetParameterBlockConstant(&f.x[3]);

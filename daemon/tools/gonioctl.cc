@@ -338,6 +338,22 @@ void PrintFit(const json& f) {
             << f["reduced_chi2"] << "  " << f.value("status", "");
   if (f.contains("samples")) std::cout << " (" << f["samples"].get<std::string>() << ")";
   std::cout << "\n";
+  // The geometry's share of the width's sigma, the nuisance parameters chi2/dof counts, and the
+  // sample stage's offset per sweep (fitting/fitter.h, GeometryUse), when the run stated them.
+  const json g = f.value("geometry", json::object());
+  if (!g.value("stated", false)) return;
+  std::ostringstream line;
+  line << std::setprecision(3) << "    geometry: " << f["width"].value("sigma_geometry", 0.0)
+       << " of the sigma; chi2/dof counts " << f.value("n_nuisance", 0.0)
+       << " nuisance parameter(s)";
+  const json stage = g.value("sample_stage", json::array());
+  if (!stage.empty()) {
+    line << "; sample stage offset per sweep (deg):";
+    for (const json& s : stage)
+      line << " at " << s.value("sample_deg", 0.0) << " " << std::showpos
+           << s.value("offset_deg", 0.0) << std::noshowpos << " +- " << s.value("sigma_deg", 0.0);
+  }
+  std::cout << line.str() << "\n";
 }
 
 int Fits(Ctl& ctl, std::int64_t id) {

@@ -136,6 +136,10 @@ ctl fit 1 --model beckmann > /dev/null || fail "fit 1"
 ctl plot 1 --model beckmann --out "$work/plot_b" > "$work/plot_b.out" 2>&1 ||
   fail "plot --model beckmann: $(cat "$work/plot_b.out")"
 ctl --json fits 1 > "$work/fits.json" || fail "fits 1"
+# The stored fits say what the geometry took: its share of sigma, the nuisance parameters counted.
+ctl fits 1 > "$work/fits.txt" || fail "fits 1 (text)"
+grep -q "geometry: .* of the sigma; chi2/dof counts .* nuisance parameter(s)" "$work/fits.txt" ||
+  fail "fits 1 does not show the geometry: $(cat "$work/fits.txt")"
 /usr/bin/python3 - "$work/fits.json" "$work/plot_b/fit_summary.json" <<'PY' || fail "the plot's fit is not the stored one"
 import json, sys
 stored = json.load(open(sys.argv[1]))["fits"][-1]["summary"]

@@ -178,7 +178,8 @@ struct BatchFixedEtaResidual {
                   : g0.factor > 0 ? k_shadow_light[light_of[i]] * T(g0.factor) *
                                         DTimesShadowingView(model, g0, width)
                                   : T(0);
-      const T shift = slope.empty() ? T(0) : T(slope[i]) * delta[0];  // empty: in no group
+      // Empty slopes: the fit has no stage groups (a run in none has slopes of 0 and delta 0).
+      const T shift = slope.empty() ? T(0) : T(slope[i]) * delta[0];
       r[i] = (m + b + shift - T(samples[i].value)) * T(1 / samples[i].sigma);
       // A step to a width where the model overflows is refused quietly (the trust region
       // shrinks), rather than reported by Ceres as a broken cost function.

@@ -12,7 +12,8 @@
 #              bench/coverage/plan_antiglare.toml)
 #   SIM_THICKNESS  the plate's thickness in mm, for the simulated sample and the catalogue's
 #              specimens alike (the sphere centre then lies off the rough face unless 6)
-#   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later)
+#   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later), and
+#              gonio-sim's truth.csv (what each frame saw: bench/coverage/truth_angles.py)
 # Holds the GigE Vision port while it runs: no other simulated camera may run meanwhile.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,7 +32,9 @@ sed -e "$thickness" ${alpha:+-e "$alpha"} config/sim.toml > "$sim_config"
 sed -e "$thickness" config/samples.toml > "$samples"
 source tests/support/gonio_sim.sh
 trap 'stop_gonio_sim; rm -rf "$work"' EXIT
-start_gonio_sim "$build/sim/gonio-sim" "$speed" "$work" "$PWD" --config "$sim_config"
+[[ -z "${COVERAGE_KEEP:-}" ]] || { mkdir -p "$COVERAGE_KEEP"; COVERAGE_KEEP=$(realpath "$COVERAGE_KEEP"); }
+start_gonio_sim "$build/sim/gonio-sim" "$speed" "$work" "$PWD" --config "$sim_config" \
+  ${COVERAGE_KEEP:+--truth-log "$COVERAGE_KEEP/truth.csv"}
 truth=$(sed -n 's/^alpha *= *\([0-9.]*\).*/\1/p' "$sim_config" | head -1)
 echo "# alpha's coverage through the whole simulated instrument"
 echo

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iomanip>
 #include <sstream>
 
 namespace gonio::sim {
@@ -96,6 +97,15 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
   std::unique_ptr<SimulatedCamera> cam(
       new SimulatedCamera(clock, scene, std::move(angles), lamp, std::move(options), faults));
   const CameraOptions& o = cam->o_;
+  if (!o.truth_log.empty()) {
+    const bool fresh = !std::filesystem::exists(o.truth_log);
+    cam->truth_log_.open(o.truth_log, std::ios::app);
+    if (!cam->truth_log_) return Error{ErrorCode::kIo, "cannot write the truth log " + o.truth_log};
+    if (fresh)
+      cam->truth_log_ << "t_s,exposure_s,shutter_closed,sample_deg,arm_deg,sample_deg_end,"
+                         "arm_deg_end,lamp_relative\n";
+    cam->truth_log_ << std::setprecision(12);
+  }
   cam->gv_ =
       arv_gv_fake_camera_new_full(o.address.c_str(), o.serial.c_str(), o.genicam_path.c_str());
   if (cam->gv_ == nullptr || !arv_gv_fake_camera_is_running(cam->gv_)) {
@@ -229,6 +239,11 @@ cv::Mat1w SimulatedCamera::Shoot(const StageAngles& a0, const StageAngles& a1, d
   s.depth = Reg(ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT) == ARV_PIXEL_FORMAT_MONO_12
                 ? PixelDepth::k12
                 : PixelDepth::k16;
+  if (truth_log_.is_open()) {
+    truth_log_ << t0 << ',' << exposure_s << ',' << Reg(camera_reg::kShutter) << ','
+               << a0.sample_deg << ',' << a0.arm_deg << ',' << a1.sample_deg << ',' << a1.arm_deg
+               << ',' << lamp_.MeanRelative(t0, t0 + exposure_s) << std::endl;
+  }
   return sensor_.Expose(rates, region.offset_x, region.offset_y, region.binning_h, region.binning_v,
                         s, rng_);
 }

@@ -17,6 +17,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <fstream>
 #include <functional>
 #include <memory>
 #include <mutex>
@@ -81,6 +82,10 @@ struct CameraOptions {
   CoolerOptions cooler;
   std::uint64_t seed = 1;
   double poll_s = 0.001;  // real time between firmware steps
+  // Where to append one CSV line per frame with what it saw (the stages' true angles at the
+  // exposure's start and end, the shutter, the lamp's mean over the exposure), to check the
+  // read-backs and the budget against; empty: none (gonio-sim --truth-log).
+  std::string truth_log;
 };
 
 // What the stages show the camera: the stage angles now.
@@ -169,6 +174,7 @@ class SimulatedCamera {
     cv::Mat1d rates;
   };
   std::optional<CacheEntry> cache_;
+  std::ofstream truth_log_;  // CameraOptions::truth_log, open when set
 
   std::atomic<bool> stop_{false};
   std::thread firmware_;

@@ -45,6 +45,10 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 65535));
   app.add_option("--monitor-port-file", monitor_port_file,
                  "write the chosen source monitor port to this file");
+  std::string truth_log;
+  app.add_option("--truth-log", truth_log,
+                 "append one CSV line per frame: the stages' true angles, shutter, lamp (to check "
+                 "read-backs against; bench/coverage/truth_angles.py)");
   CLI11_PARSE(app, argc, argv);
 
   SimConfig cfg = DefaultSimConfig();
@@ -61,6 +65,7 @@ int main(int argc, char** argv) {
   if (no_camera) cfg.camera_enabled = false;
   if (!rtu_link.empty()) cfg.rtu_link = rtu_link;
   if (monitor_port >= 0) cfg.monitor_port = monitor_port;
+  if (!truth_log.empty()) cfg.camera.truth_log = truth_log;
 
   auto started = Instrument::Start(cfg);
   if (!started) {

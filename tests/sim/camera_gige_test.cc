@@ -4,9 +4,15 @@
 #include <arv.h>
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <chrono>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <memory>
+#include <sstream>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -30,6 +36,7 @@ class CameraGigETest : public ::testing::Test {
     return LampOptions{.drift_per_hour = 0, .wander_amplitude = 0, .flicker_rms = 0};
   }
   virtual std::vector<FaultEvent> Faults() { return {}; }
+  virtual void Adjust(CameraOptions&) {}
 
   void SetUp() override {
     lamp_ = std::make_unique<Lamp>(LampOpts());
@@ -39,6 +46,7 @@ class CameraGigETest : public ::testing::Test {
     CameraOptions o;
     o.sensor.sensor_width = o.sensor.sensor_height = 256;
     o.sensor.mm_per_pixel = 0.32;
+    Adjust(o);
     auto cam = SimulatedCamera::StartGigE(
         clock_, *scene_, [this] { return angles_; }, *lamp_, o, plan_.get());
     ASSERT_TRUE(cam.ok()) << cam.error().message;
@@ -248,6 +256,55 @@ TEST_F(CameraGigEDriftingLamp, FramesAndMonitorFollowTheLampTogether) {
   // shot noise and the meter's).
   EXPECT_GT(frame_ratio, *pb0 / *pa1 - 0.005);
   EXPECT_LT(frame_ratio, *pb1 / *pa0 + 0.005);
+}
+
+// gonio-sim --truth-log: one line per frame with the stages' true angles, the shutter and the
+// lamp over the exposure, what bench/coverage/truth_angles.py sets against a run's read-backs.
+class CameraGigETruthLog : public CameraGigETest {
+ protected:
+  void Adjust(CameraOptions& o) override {
+    path_ = std::filesystem::temp_directory_path() /
+            ("gonio_truth_log_" + std::to_string(::getpid()) + ".csv");
+    std::filesystem::remove(path_);
+    o.truth_log = path_.string();
+  }
+  void TearDown() override { std::filesystem::remove(path_); }
+  std::filesystem::path path_;
+};
+
+TEST_F(CameraGigETruthLog, EachFrameLogsTheAnglesItSaw) {
+  angles_ = StageAngles{30.0004, 160.6793, 0};
+  ASSERT_FALSE(Snap(20000).empty());
+  angles_ = StageAngles{59.9996, 144.8717, 0};
+  ASSERT_FALSE(Snap(50000).empty());
+  std::ifstream in(path_);
+  std::string line;
+  ASSERT_TRUE(std::getline(in, line));
+  EXPECT_EQ(line,
+            "t_s,exposure_s,shutter_closed,sample_deg,arm_deg,sample_deg_end,arm_deg_end,"
+            "lamp_relative");
+  std::vector<std::vector<double>> rows;
+  while (std::getline(in, line)) {
+    std::vector<double> row;
+    std::stringstream ss(line);
+    for (std::string cell; std::getline(ss, cell, ',');) row.push_back(std::stod(cell));
+    ASSERT_EQ(row.size(), 8u) << line;
+    rows.push_back(row);
+  }
+  // A stale trigger may add an early frame; the last two are the two snaps, in order.
+  ASSERT_GE(rows.size(), 2u);
+  const auto& a = rows[rows.size() - 2];
+  const auto& b = rows.back();
+  EXPECT_DOUBLE_EQ(a[3], 30.0004);
+  EXPECT_DOUBLE_EQ(a[4], 160.6793);
+  EXPECT_DOUBLE_EQ(a[6], 160.6793);
+  EXPECT_NEAR(a[1], 0.02, 1e-9);
+  EXPECT_EQ(a[2], 0);
+  EXPECT_DOUBLE_EQ(b[3], 59.9996);
+  EXPECT_DOUBLE_EQ(b[4], 144.8717);
+  EXPECT_NEAR(b[1], 0.05, 1e-9);
+  EXPECT_GT(b[0], a[0]);
+  EXPECT_NEAR(b[7], 1.0, 1e-12);  // the lamp neither drifts nor flickers here
 }
 
 }  // namespace

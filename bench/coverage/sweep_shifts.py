@@ -1,17 +1,22 @@
 #!/usr/bin/env python3
 """Per-sweep lobe shifts left in a fit's residuals (docs/measurement.md, antiglare's coverage).
 
-For each incidence of each fit_curves.csv that gonio-fit wrote, fits one shift of the sweep along
-the view to value - prediction, with the fitted model's slope along the view (central differences
-of the predictions) and weights from the stored sigma. The shift's sigma counts the stored sigma
-and the arm's per-point read-back error (angle_sigma times the slope). z = shift / sigma; with
-honest sigmas and nothing common to a sweep, z has rms 1.
+For each incidence of each fit_curves_joint.csv (or, without the protocol, fit_curves.csv) that
+gonio-fit wrote, fits one shift of the sweep along the view to value - prediction, with the fitted
+model's slope along the view (central differences of the predictions) and weights from the stored
+sigma. The shift's sigma counts the stored sigma and the arm's per-point read-back error
+(angle_sigma times the slope). z = shift / sigma; with honest sigmas and nothing common to a
+sweep, z has rms 1 (less where the fit's sample-stage offsets took part of each sweep's shift).
+The joint fit's curves, not fit_curves.csv: under the protocol that holds the normal-incidence
+fit's predictions, which at the other incidences carry neither their sample-stage offsets nor the
+geometry the joint fit found (read so, antiglare's runs once seemed to shift 2.4 sigma a sweep).
 
-  bench/coverage/sweep_shifts.py [--angle-sigma DEG] FIT_DIR...   (FIT_DIR holds fit_curves.csv)
+  bench/coverage/sweep_shifts.py [--angle-sigma DEG] FIT_DIR...   (gonio-fit --out's directories)
 """
 import argparse
 import csv
 import math
+import os
 import sys
 
 
@@ -41,7 +46,9 @@ def main():
     a = ap.parse_args()
     z_by_incidence = {}
     for d in a.fits:
-        path = f"{d}/fit_curves.csv"
+        path = f"{d}/fit_curves_joint.csv"
+        if not os.path.exists(path):
+            path = f"{d}/fit_curves.csv"
         try:
             rows = list(csv.DictReader(open(path)))
         except OSError as e:

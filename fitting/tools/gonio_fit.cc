@@ -118,14 +118,24 @@ Status WriteOutputs(const std::string& out_dir, const std::string& csv_path,
   std::filesystem::create_directories(out_dir, ec);
   if (ec) return InvalidArgument(out_dir + ": cannot create: " + ec.message());
   const auto& curve_fits = result.curve_fits();
+  auto write_curves = [&samples](std::ofstream& curves, const std::vector<FitSummary>& fits) {
+    curves << "theta_l_deg,theta_v_deg,value,sigma";
+    for (const auto& f : fits) curves << ",pred_" << Name(f.model.family);
+    curves << "\n" << std::setprecision(10);
+    for (const Sample& s : samples) {
+      curves << ThetaLightDeg(s) << ',' << ThetaViewDeg(s) << ',' << s.value << ',' << s.sigma;
+      for (const auto& f : fits) curves << ',' << Predict(f, s);
+      curves << "\n";
+    }
+  };
   std::ofstream curves(out_dir + "/fit_curves.csv");
-  curves << "theta_l_deg,theta_v_deg,value,sigma";
-  for (const auto& f : curve_fits) curves << ",pred_" << Name(f.model.family);
-  curves << "\n" << std::setprecision(10);
-  for (const Sample& s : samples) {
-    curves << ThetaLightDeg(s) << ',' << ThetaViewDeg(s) << ',' << s.value << ',' << s.sigma;
-    for (const auto& f : curve_fits) curves << ',' << Predict(f, s);
-    curves << "\n";
+  write_curves(curves, curve_fits);
+  // With the protocol the curves above are the normal-incidence fits' (they describe the lobe);
+  // the joint fits' own residuals, each incidence at its own sample-stage offset, go beside them.
+  if (&curve_fits != &joint_fits) {
+    std::ofstream joint(out_dir + "/fit_curves_joint.csv");
+    write_curves(joint, joint_fits);
+    if (!joint) return InvalidArgument(out_dir + ": writing fit_curves_joint.csv failed");
   }
   std::ofstream emp(out_dir + "/empirical_d.csv");
   emp << "model,theta_h_deg,d,d_sigma\n" << std::setprecision(10);
@@ -247,7 +257,8 @@ int main(int argc, char** argv) {
     if (Status w = WriteOutputs(out_dir, csv_path, *samples, result); !w.ok())
       return fail_input(w.error().message);
     std::cout << "\nwrote " << out_dir
-              << "/{fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json}\n";
+              << "/{fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json"
+              << (result.protocol ? ", fit_curves_joint.csv" : "") << "}\n";
   }
   return result.AnyFitted() ? 0 : 1;
 }

@@ -129,17 +129,19 @@ struct StageOffset {
 // (linear: on the bench angle_sigma is a few ten-thousandths of a degree). Its prior's term is in
 // chi2, so it takes no degree of freedom (the minimised chi2 is then the generalised one of the
 // group's correlated errors, chi-square with n - p degrees of freedom). Both slopes are the fitted
-// model's at the point, and the fit is redone with them when the angle term would change some
-// sample's sigma by more than response_tolerance^2 / 2 (a tenth of sigma in quadrature at the
-// default). The thickness and the rectangle's position are common to a run: an error in them
-// moves every point together, so they are nuisance parameters (NuisanceUse), profiled by
-// least-squares refits with each moved a step either way (the thickness by its sigma, the
-// rectangle by a pixel along x and along y) against one unmoved. Where the data know a quantity
-// better than its stated sigma, the fit is redone at the most probable geometry (its width, k,
-// floor, chi-square and residuals are that refit's) and the width's geometry sigma shrinks to what
-// is left; where they do not, the prior's sigma stands. A refit that does not converge leaves its
-// part out, named in the note. They are not computed for an unconstrained fit (no width to budget;
-// the refits are most of a response fit's time).
+// model's at the point as the fit takes it (through its response), and the fit is redone with them
+// when the angle term would change some sample's sigma by more than response_tolerance^2 / 2 (a
+// tenth of sigma in quadrature at the default). The thickness and the rectangle's position are
+// common to a run: an error in them moves every point together, so they are nuisance parameters
+// (NuisanceUse), profiled together by least-squares refits with each moved a step either way and
+// each pair together (first the thickness by its sigma and the rectangle by a pixel along x and
+// along y, then at twice the sigmas the data leave), one quadratic with its cross terms: each
+// quantity's offset and sigma are the marginal posterior's. Where the data know a quantity better
+// than its stated sigma, the fit is redone at the most probable geometry (its width, k, floor,
+// chi-square and residuals are that refit's) and the width's geometry sigma shrinks to what is
+// left; where they do not, the prior's sigma stands. A refit that does not converge leaves its part
+// out, named in the note. They are not computed for an unconstrained fit (no width to budget; the
+// refits are most of a response fit's time).
 struct GeometryUse {
   bool stated = false;                    // the samples carry a response: the geometry is known
   double angle_max_fraction = 0;          // the largest angle term over a sample's sigma

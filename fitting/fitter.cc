@@ -1091,7 +1091,8 @@ std::optional<std::vector<Sample>> MovedBy(std::span<const Sample> used,
 }
 
 // What a joint profile gives: each quantity's use, why a quantity's data were not used, and the
-// unconstrained estimates (where the data alone put each one; NaN where they say nothing).
+// joint estimates (the posterior's most probable offsets with every quantity's data in, before
+// any was dropped for lying beyond the probes; NaN for a quantity whose data did not enter).
 struct JointUse {
   std::vector<NuisanceUse> use;
   std::vector<bool> left_out;  // no refit with it moved converged: its part is not in sigma

@@ -229,7 +229,8 @@ cv::Mat1w SimulatedCamera::Shoot(const StageAngles& a0, const StageAngles& a1, d
   const ImageRegion region = CurrentRegion();
   cv::Mat1d rates = Rates(a0, region).clone();
   if (!SameAngles(a0, a1)) rates = 0.5 * (rates + Rates(a1, region));  // moved while exposing
-  rates *= lamp_.MeanRelative(t0, t0 + exposure_s);
+  const double lamp = lamp_.MeanRelative(t0, t0 + exposure_s);
+  rates *= lamp;
   if (Reg(camera_reg::kShutter) == 1) rates = 0.0;  // closed: a dark frame (dark current, bias)
   ExposureSettings s;
   s.exposure_s = exposure_s;
@@ -242,7 +243,7 @@ cv::Mat1w SimulatedCamera::Shoot(const StageAngles& a0, const StageAngles& a1, d
   if (truth_log_.is_open()) {
     truth_log_ << t0 << ',' << exposure_s << ',' << Reg(camera_reg::kShutter) << ','
                << a0.sample_deg << ',' << a0.arm_deg << ',' << a1.sample_deg << ',' << a1.arm_deg
-               << ',' << lamp_.MeanRelative(t0, t0 + exposure_s) << std::endl;
+               << ',' << lamp << std::endl;
   }
   return sensor_.Expose(rates, region.offset_x, region.offset_y, region.binning_h, region.binning_v,
                         s, rng_);

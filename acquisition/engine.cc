@@ -294,15 +294,25 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
     level = b.Mean();
   }
   m.sigma_monitor = std::abs(m.value) * std::sqrt(monitor_rel_var);
-  // The lamp between frames: each frame's mean scatters by its pixels' noise / P and by what all
-  // pixels share (c s^2 for a relative fluctuation c of the signal s). c is the ratio of the
-  // pooled excess to the pooled s^2, by exposure.
+  // The lamp between frames: each frame's mean scatters by its pixels' noise q = pixel_var / P
+  // and by what all pixels share (c s^2 for a relative fluctuation c of the signal s). c is
+  // pooled by exposure as a weighted least-squares fit of excess = c s^2: the excess over n
+  // frames scatters by sqrt(2 / (n - 1)) (q + c s^2), so a faint point, whose excess is its
+  // pixels' noise, weighs (s^2 / (q + c s^2))^2 less than a bright one. An unweighted ratio
+  // (sum of excesses over sum of s^2) let a lobe's tails, sharing an exposure with its flank,
+  // add their noise to the flank's c: with a steady lamp the lamp term reached the point's
+  // statistical sigma (tests/acquisition/engine_sim_test.cc,
+  // ASteadyLampAddsNoLampTermAtOneExposure).
   const double signal = m.rect_mean - level;
   if (m.frames >= 2) {
     Pool& pool = lamp_pools_[static_cast<std::int64_t>(std::llround(t * 1e6))];
     const double excess = acc.FrameMeansVariance() - m.pixel_var / m.rect_pixels;  // drift-free
-    pool.sum2 += (m.frames - 1) * excess;
-    pool.weight += (m.frames - 1) * signal * signal;
+    const double s2 = signal * signal;
+    const double q = m.pixel_var / m.rect_pixels;
+    if (q > 0 && s2 > 0) {
+      pool.sum2 += (m.frames - 1) * s2 * excess / (q * q);
+      pool.weight += (m.frames - 1) * s2 * s2 / (q * q);
+    }
     m.sigma_lamp = std::abs(m.value) * std::sqrt(pool.Variance() / m.frames);
   }
   m.sigma = std::sqrt(m.sigma_stat * m.sigma_stat + m.sigma_lamp * m.sigma_lamp +
@@ -333,6 +343,17 @@ Result<Measurement> Engine::Complete(Exposed& e) {
   auto m = Reduce(e);
   if (!m.ok()) return m;
   if (Status s = db_.StoreMeasurement(run_, *m); !s.ok()) return s.error();
+  Pooled p{.index = m->index,
+           .abs_value = std::abs(m->value),
+           .sigma_stat = m->sigma_stat,
+           .frames = m->frames,
+           .lamp_key = std::llround(m->exposure_s * 1e6),
+           .monitor_readings = m->monitor_w ? static_cast<double>(e.monitor.size()) : 0.0,
+           .bg_pixel = std::nullopt,
+           .bg_frames = 0,
+           .exposure_norm = m->exposure_s * (m->monitor_w ? *m->monitor_w / kMonitorUnitW : 1.0)};
+  if (e.background) p.bg_pixel = e.bg.PixelVariance() / m->rect_pixels, p.bg_frames = e.bg.frames();
+  pooled_.push_back(p);
   if (const int stale = camera_.StaleFrames(); stale != stale_frames_) {
     (void)db_.AddEvent(run_, "camera",
                        "point " + std::to_string(e.point.index) + ": " +
@@ -342,6 +363,30 @@ Result<Measurement> Engine::Complete(Exposed& e) {
     stale_frames_ = stale;
   }
   return m;
+}
+
+Status Engine::RefreshBudgets() {
+  std::vector<Storage::BudgetUpdate> updates;
+  updates.reserve(pooled_.size());
+  for (const Pooled& p : pooled_) {
+    Storage::BudgetUpdate b{.index = p.index, .sigma_background = std::nullopt};
+    if (p.frames >= 2) {
+      const auto pool = lamp_pools_.find(p.lamp_key);
+      if (pool != lamp_pools_.end())
+        b.sigma_lamp = p.abs_value * std::sqrt(pool->second.Variance() / p.frames);
+    }
+    if (p.monitor_readings > 0)
+      b.sigma_monitor = p.abs_value * std::sqrt(monitor_pool_.Variance() / p.monitor_readings);
+    if (p.bg_pixel)
+      b.sigma_background =
+          std::sqrt((*p.bg_pixel + background_pool_.Variance()) / p.bg_frames) / p.exposure_norm;
+    const double bg = b.sigma_background.value_or(0);
+    b.sigma = std::sqrt(p.sigma_stat * p.sigma_stat + b.sigma_lamp * b.sigma_lamp +
+                        b.sigma_monitor * b.sigma_monitor + bg * bg);
+    updates.push_back(b);
+  }
+  if (updates.empty()) return OkStatus();
+  return db_.UpdateBudgets(run_, updates);
 }
 
 Result<Measurement> Engine::Retake(Exposed& e, const Error& why) {
@@ -377,7 +422,13 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
     ~CameraInterrupt() { camera.SetInterrupt(nullptr); }
   } interrupt_guard{camera_};
   camera_.SetInterrupt(interrupt_);
+  if (run != run_) pooled_.clear();  // a resume on this engine refreshes its earlier points too
   Status s = RunPoints(run, plan, stop, progress);
+  if (Status r = RefreshBudgets(); !r.ok())
+    (void)db_.AddEvent(run, "budget",
+                       "the pooled terms' final estimates were not stored (each point keeps the "
+                       "estimate it was measured with): " +
+                           r.error().ToString());
   // Interrupted: the run was left paused with its point pending (the fault handler below).
   if (!s.ok() && s.error().code == ErrorCode::kAborted && Interrupted()) return OkStatus();
   return s;

@@ -21,9 +21,15 @@
 //            dark's;
 //   lamp     the lamp's fluctuation between the point's frames, which every pixel shares (so it
 //            does not average over the rectangle): the frames' means' scatter beyond their
-//            pixels' noise, pooled over the run's points of the same exposure;
+//            pixels' noise, pooled over the run's points of the same exposure (weighted by
+//            how well each point resolves it: a faint point's excess is its pixels' noise);
 //   monitor  the normalisation: the scatter of single monitor readings, pooled over the run, over
 //            the point's number of readings;
+// The pooled terms of a point are first estimated from the points before it (so that progress
+// and an adaptive run's decisions have them); when Run returns, every point it stored takes the
+// pools' final estimates (Storage::UpdateBudgets): the first points of a pool otherwise carry an
+// estimate from a handful of frames, the clamp at 0 of which inflates them.
+// A run resumed by another engine (a daemon restarted) keeps the earlier points' estimates.
 //   background  with [background] measure = true (plan.h): after the point's frames the beam
 //            block swings into the source beam and frames at the same exposure see the stray
 //            light alone; their mean is subtracted (the dark then cancels and leaves stat) and
@@ -179,6 +185,20 @@ class Engine {
   Pool monitor_pool_;                        // of one monitor reading
   std::map<std::int64_t, Pool> lamp_pools_;  // of one frame's common mode, by exposure (us)
   Pool background_pool_;                     // of one background frame's common mode, absolute
+  // What each point stored by this engine needs to take the pools' final estimates when Run
+  // returns (RefreshBudgets): a point early in its pool got an estimate from few others.
+  struct Pooled {
+    int index = 0;
+    double abs_value = 0, sigma_stat = 0;
+    int frames = 0;
+    std::int64_t lamp_key = 0;
+    double monitor_readings = 0;     // 0: no monitor
+    std::optional<double> bg_pixel;  // the background's pixel variance of a frame's mean, ADU^2
+    int bg_frames = 0;
+    double exposure_norm = 1;  // exposure times the monitor's normalisation
+  };
+  std::vector<Pooled> pooled_;
+  Status RefreshBudgets();
   EngineStats stats_;
 };
 

@@ -482,6 +482,27 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
   return OkStatus();
 }
 
+Status Storage::UpdateBudgets(std::int64_t run, const std::vector<BudgetUpdate>& updates) {
+  std::lock_guard guard(mu_);
+  if (Status s = Exec("BEGIN IMMEDIATE"); !s.ok()) return s;
+  for (const BudgetUpdate& b : updates) {
+    Stmt u(db_,
+           "UPDATE measurements SET sigma=?, sigma_lamp=?, sigma_monitor=?, sigma_background=? "
+           "WHERE run_id=? AND idx=?");
+    u.Bind(1, b.sigma).Bind(2, b.sigma_lamp).Bind(3, b.sigma_monitor).Bind(4, b.sigma_background);
+    u.Bind(5, run).Bind(6, b.index);
+    const std::string what = "point " + std::to_string(b.index) + " of run " + std::to_string(run);
+    Error e{ErrorCode::kInvalidArgument, "no measurement of " + what};
+    const bool stepped = u.Step() == SQLITE_DONE;
+    if (!stepped) e = u.Fail("updating the budget of " + what);
+    if (!stepped || sqlite3_changes(db_) != 1) {
+      (void)Exec("ROLLBACK");
+      return e;
+    }
+  }
+  return Exec("COMMIT");
+}
+
 Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
   std::lock_guard guard(mu_);
   Stmt q(db_,

@@ -151,6 +151,15 @@ class Storage {
   // Stores the measurement and marks its point done, atomically.
   Status StoreMeasurement(std::int64_t run, const Measurement& m);
   Result<std::vector<MeasurementRow>> Measurements(std::int64_t run);
+  // A stored point's budget as re-estimated once more of the run is known (the engine's pooled
+  // terms at the run's end, engine.h): sigma and the lamp, monitor and background components,
+  // for the listed points of the run, in one transaction. The values and everything else stay.
+  struct BudgetUpdate {
+    int index = 0;
+    double sigma = 0, sigma_lamp = 0, sigma_monitor = 0;
+    std::optional<double> sigma_background;
+  };
+  Status UpdateBudgets(std::int64_t run, const std::vector<BudgetUpdate>& updates);
   // The exposures of the newest finished ("done") run of this specimen, to estimate a new plan's
   // time (EstimateSeconds); nullopt if the specimen has none.
   Result<std::optional<ExposureHistory>> LatestExposures(const std::string& specimen);

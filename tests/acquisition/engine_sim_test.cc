@@ -162,6 +162,64 @@ TEST_F(EngineOnSim, SweepReproducesTheGroundTruthWithHonestUncertaintiesOverFour
   std::filesystem::remove(db_path + ".csv");
 }
 
+// The lamp term is the frames' common-mode scatter beyond their pixels' noise, pooled by exposure.
+// With a steady lamp there is none, and the pool must not invent one. Issue #16's antiglare runs
+// showed how it did: a sweep's first points, its tails, met an empty pool at their exposure, so
+// their own excess (pixel noise) over their small signal became the lamp's relative variance, and
+// a tail's lamp term came out 0.4-1 of its statistical one (and a point after them on the flank
+// took it up, scaled by its signal). Every point now takes the run's final pool when Run returns,
+// one relative term per exposure, fitted with weights (s^2 / q)^2 that leave the faint points'
+// noise out of it.
+TEST_F(EngineOnSim, ASteadyLampAddsNoLampTermAtOneExposure) {
+  auto [plan, run] = NewRun(
+      "incidence_deg = [0]\nview_about = \"refracted\"\n"
+      "view_from_deg = -30\nview_to_deg = 30\nview_step_deg = 2.5",
+      "frames = 4\ninitial_s = 0.05\nmin_s = 0.05\nmax_s = 0.05\nfloor = 0");
+  Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
+                EngineOptions{.linear_limit_adu = 65000});
+  const auto rows = RunToEnd(engine, plan, run);
+  ASSERT_EQ(rows.size(), 25u);
+  double lamp2 = 0, stat2 = 0, z2 = 0, share = 0, lo = 1e300, hi = 0;
+  const double relative = rows[0].m.sigma_lamp / std::abs(rows[0].m.value);
+  for (const MeasurementRow& r : rows) {
+    const Measurement& m = r.m;
+    ASSERT_NEAR(m.exposure_s, 0.05, 1e-9);
+    ASSERT_EQ(m.frames, 4);
+    // One pool, its final estimate: the same relative lamp term at every point.
+    EXPECT_NEAR(m.sigma_lamp / std::abs(m.value), relative, 1e-9 * relative + 1e-15)
+        << "point " << r.point.index;
+    EXPECT_NEAR(m.sigma * m.sigma,
+                m.sigma_stat * m.sigma_stat + m.sigma_lamp * m.sigma_lamp +
+                    m.sigma_monitor * m.sigma_monitor,
+                1e-9 * m.sigma * m.sigma);
+    lamp2 += m.sigma_lamp * m.sigma_lamp / (m.sigma_stat * m.sigma_stat);
+    stat2 += 1;
+    share = std::max(share, m.sigma_lamp / m.sigma_stat);
+    z2 += Z(r) * Z(r);
+    lo = std::min(lo, m.value);
+    hi = std::max(hi, m.value);
+    if (std::getenv("PULLS"))
+      std::printf("%6.1f value %.4g stat %.3g lamp %.3g z %+.2f\n", r.point.theta_v_deg, m.value,
+                  m.sigma_stat, m.sigma_lamp, Z(r));
+  }
+  const double n = static_cast<double>(rows.size());
+  std::printf(
+      "25 points, %.3g to %.3g: mean lamp/stat variance %.3f, largest lamp/stat %.2f, "
+      "rms pull %.3f\n",
+      lo, hi, lamp2 / stat2, share, std::sqrt(z2 / n));
+  double faint = 1e300;
+  for (const MeasurementRow& r : rows) faint = std::min(faint, r.m.sigma_stat);
+  ASSERT_GT(hi / faint, 300);  // bright points and ones lost in noise share the exposure's pool
+  // Pure noise in the pool: at the peak, where it is largest against stat, the lamp's variance
+  // scatters about 0 by ~0.3 of the statistical one (the bright points' 3 degrees of freedom
+  // each); a term as large as stat is 3.4 of those sigmas out. Before, the first flank point
+  // had 1.29 and the tails up to 0.2.
+  EXPECT_LT(share, 1.0);
+  // 25 unit-normal pulls: an rms within 0.6-1.45 with 99.8 % probability.
+  EXPECT_GT(std::sqrt(z2 / n), 0.6);
+  EXPECT_LT(std::sqrt(z2 / n), 1.45);
+}
+
 // Issue #16 item 3: the background measured with the beam blocked ahead of the sample. The
 // bench here has a beam block (a flag on a third axis); the plan asks for the background. Each
 // point's background must be the stray light the scene adds (its rates with the beam blocked,

@@ -170,6 +170,52 @@ TEST_F(StorageTest, PointsAreStoredOnceAndTheRestStayPending) {
   EXPECT_FALSE((*s)->UnfinishedRun()->has_value());
 }
 
+// The engine re-estimates its pooled budget terms when a run ends (engine.h): the update changes
+// sigma and those components and nothing else, and one naming a point the run has not stored is
+// refused whole (the earlier points in it keep their budgets too).
+TEST_F(StorageTest, ABudgetUpdateChangesTheSigmasOnlyAndAnUnknownPointChangesNothing) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  const auto run = NewRun(**s, 3, 0);
+  ASSERT_TRUE((*s)->SetRunStatus(run, RunStatus::kRunning).ok());
+  Measurement a = M(0, 10), b = M(1, 20);
+  a.sigma_stat = b.sigma_stat = 0.1;
+  ASSERT_TRUE((*s)->StoreMeasurement(run, a).ok());
+  ASSERT_TRUE((*s)->StoreMeasurement(run, b).ok());
+  const Status bad = (*s)->UpdateBudgets(run, {{.index = 0,
+                                                .sigma = 0.5,
+                                                .sigma_lamp = 0.4,
+                                                .sigma_monitor = 0.3,
+                                                .sigma_background = std::nullopt},
+                                               {.index = 2,
+                                                .sigma = 1,
+                                                .sigma_lamp = 1,
+                                                .sigma_monitor = 0,
+                                                .sigma_background = std::nullopt}});
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("point 2 of run"), std::string::npos) << bad.error().message;
+  auto rows = (*s)->Measurements(run);
+  ASSERT_TRUE(rows.ok());
+  EXPECT_EQ((*rows)[0].m.sigma, 0.1);
+  EXPECT_EQ((*rows)[0].m.sigma_lamp, 0);
+  ASSERT_TRUE((*s)->UpdateBudgets(run, {{.index = 1,
+                                         .sigma = 0.5,
+                                         .sigma_lamp = 0.4,
+                                         .sigma_monitor = 0.3,
+                                         .sigma_background = 0.02}})
+                  .ok());
+  rows = (*s)->Measurements(run);
+  ASSERT_TRUE(rows.ok());
+  const Measurement& m = (*rows)[1].m;
+  EXPECT_EQ(m.value, 20);
+  EXPECT_EQ(m.sigma_stat, 0.1);
+  EXPECT_EQ(m.sigma, 0.5);
+  EXPECT_EQ(m.sigma_lamp, 0.4);
+  EXPECT_EQ(m.sigma_monitor, 0.3);
+  EXPECT_EQ(m.sigma_background, 0.02);
+  EXPECT_EQ((*rows)[0].m.sigma, 0.1);  // the other point untouched
+}
+
 // Issue #17: what the bench delivers, for estimates of specimens never measured, comes from a
 // finished run with a chosen fit: the fit's scale and floor, and the counts per stored value
 // (the median, so that one odd point does not decide).

@@ -116,7 +116,13 @@ struct StageOffset {
   double sample_deg = 0;  // the read-back angle the group shares
   int points = 0;         // how many samples
   double offset_deg = 0;  // the posterior's most probable offset (0 a priori)
-  double sigma_deg = 0;   // its sigma (the prior's, angle_sigma_deg, where the data say nothing)
+  // Its sigma (the prior's, angle_sigma_deg, where the data say nothing), conditional on the
+  // thickness and the rectangle found: the offsets are solved inside the final refit, with the
+  // geometry held where JointProfile put it. Both shift the lobe, so with few incidences the
+  // offsets and the thickness trade against each other and the true offset can lie well beyond
+  // this sigma (issue #16's antiglare runs: the offsets found missed the simulator's by about
+  // the prior). The width's sigma is not affected: it carries the geometry's part separately.
+  double sigma_deg = 0;
 };
 
 // How the geometry's uncertainties (BenchOptics: angle_sigma_deg, thickness_sigma_mm,

@@ -567,20 +567,18 @@ double ModelAt(const FitSummary& f, const Sample& sample, const StagePosition& a
 // on a narrow lobe the rectangle and the apertures widen the flanks, and the point model's slopes
 // put the sample stage's offsets where the data do not (on antiglare the offsets found missed
 // those the simulator drew by 2-3 of their sigmas, and the thickness and the rectangle took the
-// rest). 0, 0 for a sample without a response.
-std::pair<double, double> StageSlopes(const FitSummary& f, const Sample& s) {
-  if (!s.response || !s.response->setup) return {0.0, 0.0};
+// rest). 0, 0 for a sample without a response. Each slope is two response builds.
+double StageSlope(const FitSummary& f, const Sample& s, double StagePosition::*axis) {
+  if (!s.response || !s.response->setup) return 0.0;
   const double h = 0.01;  // deg: the slope over a hundredth of a degree
-  const StagePosition at = s.response->at;
-  StagePosition a = at, b = at;
-  a.sample_deg += h;
-  b.sample_deg -= h;
-  const double d_sample = (ModelAt(f, s, a) - ModelAt(f, s, b)) / (2 * h);
-  a = b = at;
-  a.arm_deg += h;
-  b.arm_deg -= h;
-  const double d_arm = (ModelAt(f, s, a) - ModelAt(f, s, b)) / (2 * h);
-  return {d_sample, d_arm};
+  StagePosition a = s.response->at, b = s.response->at;
+  a.*axis += h;
+  b.*axis -= h;
+  return (ModelAt(f, s, a) - ModelAt(f, s, b)) / (2 * h);
+}
+
+std::pair<double, double> StageSlopes(const FitSummary& f, const Sample& s) {
+  return {StageSlope(f, s, &StagePosition::sample_deg), StageSlope(f, s, &StagePosition::arm_deg)};
 }
 
 }  // namespace
@@ -624,10 +622,12 @@ double Predict(const FitSummary& fit, const Sample& sample) {
     s.response->setup = std::make_shared<const ResponseSetup>(std::move(moved));
     value = ModelAt(fit, s, s.response->at);
     // The sample stage's offset of the first group read back at this angle (a sample alone does
-    // not say which visit to the angle it was taken in).
+    // not say which visit to the angle it was taken in), through the slope at the fitted
+    // geometry.
     for (const StageOffset& g : fit.geometry.sample_stage)
       if (g.sample_deg == sample.response->at.sample_deg) {
-        value += StageSlopes(fit, sample).first * g.offset_deg;
+        if (g.offset_deg != 0)
+          value += StageSlope(fit, s, &StagePosition::sample_deg) * g.offset_deg;
         break;
       }
   }

@@ -366,14 +366,27 @@ Result<Measurement> Engine::Complete(Exposed& e) {
 }
 
 Status Engine::RefreshBudgets() {
+  // The lamp's relative variance by exposure, fitted non-increasing in the exposure (reduce.h):
+  // an exposure that a point or two met borrows from its neighbours instead of carrying its own
+  // few frames' noise. Unclamped until fitted, so that noise below 0 pulls as noise above does.
+  std::vector<std::int64_t> keys;
+  std::vector<double> c, weight;
+  for (const auto& [key, pool] : lamp_pools_) {  // by exposure, increasing
+    if (!(pool.weight > 0)) continue;
+    keys.push_back(key);
+    c.push_back(pool.sum2 / pool.weight);
+    weight.push_back(pool.weight);
+  }
+  std::map<std::int64_t, double> lamp;
+  const std::vector<double> fitted = NonIncreasingFit(c, weight);
+  for (std::size_t i = 0; i < keys.size(); ++i) lamp[keys[i]] = std::max(0.0, fitted[i]);
   std::vector<Storage::BudgetUpdate> updates;
   updates.reserve(pooled_.size());
   for (const Pooled& p : pooled_) {
     Storage::BudgetUpdate b{.index = p.index, .sigma_background = std::nullopt};
     if (p.frames >= 2) {
-      const auto pool = lamp_pools_.find(p.lamp_key);
-      if (pool != lamp_pools_.end())
-        b.sigma_lamp = p.abs_value * std::sqrt(pool->second.Variance() / p.frames);
+      const auto it = lamp.find(p.lamp_key);
+      if (it != lamp.end()) b.sigma_lamp = p.abs_value * std::sqrt(it->second / p.frames);
     }
     if (p.monitor_readings > 0)
       b.sigma_monitor = p.abs_value * std::sqrt(monitor_pool_.Variance() / p.monitor_readings);

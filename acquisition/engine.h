@@ -28,7 +28,9 @@
 // The pooled terms of a point are first estimated from the points before it (so that progress
 // and an adaptive run's decisions have them); when Run returns, every point it stored takes the
 // pools' final estimates (Storage::UpdateBudgets): the first points of a pool otherwise carry an
-// estimate from a handful of frames, the clamp at 0 of which inflates them.
+// estimate from a handful of frames, the clamp at 0 of which inflates them. The lamp's estimates
+// by exposure are then fitted non-increasing in the exposure (NonIncreasingFit, reduce.h), so
+// that an exposure only a point or two used borrows from its neighbours.
 // A run resumed by another engine (a daemon restarted) keeps the earlier points' estimates.
 //   background  with [background] measure = true (plan.h): after the point's frames the beam
 //            block swings into the source beam and frames at the same exposure see the stray

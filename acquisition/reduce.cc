@@ -52,4 +52,29 @@ double RectAccumulator::PixelVariance() const {
   return std::max(0.0, cv::mean(v)[0]) * level * level;
 }
 
+std::vector<double> NonIncreasingFit(std::span<const double> values,
+                                     std::span<const double> weights) {
+  struct Block {
+    double mean, weight;
+    std::size_t n;
+  };
+  std::vector<Block> blocks;
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    blocks.push_back({values[i], weights[i], 1});
+    // A block above the one before it violates the order: merge them, and again backwards.
+    while (blocks.size() > 1 && blocks.back().mean > blocks[blocks.size() - 2].mean) {
+      const Block b = blocks.back();
+      blocks.pop_back();
+      Block& a = blocks.back();
+      a.mean = (a.mean * a.weight + b.mean * b.weight) / (a.weight + b.weight);
+      a.weight += b.weight;
+      a.n += b.n;
+    }
+  }
+  std::vector<double> out;
+  out.reserve(values.size());
+  for (const Block& b : blocks) out.insert(out.end(), b.n, b.mean);
+  return out;
+}
+
 }  // namespace gonio::acquisition

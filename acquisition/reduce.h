@@ -10,6 +10,9 @@
 // 4 frames, 2.5 times less). Frames are not retained: two small double images per point.
 #pragma once
 
+#include <span>
+#include <vector>
+
 #include <opencv2/core.hpp>
 
 namespace gonio::acquisition {
@@ -43,5 +46,15 @@ class RectAccumulator {
   double max_ = 0;
   int saturated_ = 0;
 };
+
+// The weighted least-squares fit of a sequence by a non-increasing one (the pool-adjacent-
+// violators algorithm: Barlow, Bartholomew, Bremner and Brunk 1972): adjacent entries that rise
+// are replaced by their weighted mean until none does. The engine fits the lamp's per-exposure
+// estimates with it, in order of increasing exposure: flicker averages over a longer exposure,
+// so its variance there is no larger, and an exposure met by a point or two borrows from its
+// neighbours where its own estimate would rise above theirs. Preconditions: equal sizes, weights
+// > 0.
+std::vector<double> NonIncreasingFit(std::span<const double> values,
+                                     std::span<const double> weights);
 
 }  // namespace gonio::acquisition

@@ -7,7 +7,9 @@ matched, in order, to the first run of frames at its read-back angles (within ha
 the read-back errors (true - read) are summarised per incidence sweep, in steps of 1/1000 deg:
 the sample stage's (one per sweep, as the fitter models it) and the arm's (one per point), with
 their mean and spread. --true writes a copy of the export with the true angles in the read-back
-columns (and angle_sigma_deg 0 in its response line) to refit without the read-back error.
+columns (and angle_sigma_deg 0 in its response line) to refit without the read-back error: of
+the last export given, so name the runs before it too (run1.csv ... runN.csv for run N): the
+frames are matched in order, and every run of one plan visits the same read-back angles.
 
   bench/coverage/truth_angles.py TRUTH_CSV EXPORT_CSV... [--true OUT_CSV]
 """
@@ -44,7 +46,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("truth")
     ap.add_argument("exports", nargs="+")
-    ap.add_argument("--true", help="with one export: write it with the true angles here")
+    ap.add_argument("--true", help="write the last export with the true angles here")
     a = ap.parse_args()
     groups = frames(a.truth)
     g = 0
@@ -69,9 +71,7 @@ def main():
                   f"{max(sample):+.3f} steps; arm mean {statistics.fmean(arm):+.3f} "
                   f"(sd of a mean {statistics.pstdev(arm) / math.sqrt(len(arm)):.3f}), "
                   f"sd {statistics.pstdev(arm):.3f} steps (uniform +-0.5: 0.289)")
-        if a.true:
-            if len(a.exports) != 1:
-                sys.exit("truth_angles: --true takes one export")
+        if a.true and path == a.exports[-1]:
             for r in rows:
                 r["sample_read_deg"] = f"{r['_true'][0]:.9f}"
                 r["arm_read_deg"] = f"{r['_true'][1]:.9f}"

@@ -52,15 +52,24 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
             << "width" << std::setw(10) << "alpha_eq" << std::setw(18) << "eta" << std::setw(10)
             << "chi2/dof" << std::setw(10) << "dBIC"
             << "status\n";
+  // A cell padded to its column, or followed by one space where it is wider (a width with many
+  // digits ran into alpha_eq: "0.000000950.023").
+  auto cell = [](const std::string& text, std::size_t w) {
+    return text.size() < w ? text + std::string(w - text.size(), ' ') : text + " ";
+  };
+  auto number = [](double v, int precision) {
+    std::ostringstream os;
+    os << std::setprecision(precision) << v;
+    return os.str();
+  };
   for (std::size_t k = 0; k < fits.size(); ++k) {
     const FitSummary& f = fits[k];
     std::ostringstream width;
     width << WidthName(f.model.family) << " " << PlusMinus(f.width, 4);
-    std::cout << std::left << std::setw(24) << Describe(f.model) << std::setw(22)
-              << PlusMinus(f.scale, 4) << std::setw(30) << width.str() << std::setw(10)
-              << std::setprecision(4) << f.alpha_equivalent << std::setw(18) << PlusMinus(f.eta, 3)
-              << std::setw(10) << std::setprecision(4) << f.reduced_chi2 << std::setw(10)
-              << std::setprecision(3) << choice.delta_bic[k] << ToString(f.status) << "\n";
+    std::cout << cell(Describe(f.model), 24) << cell(PlusMinus(f.scale, 4), 22)
+              << cell(width.str(), 30) << cell(number(f.alpha_equivalent, 4), 10)
+              << cell(PlusMinus(f.eta, 3), 18) << cell(number(f.reduced_chi2, 4), 10)
+              << cell(number(choice.delta_bic[k], 3), 10) << ToString(f.status) << "\n";
     if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
     if (f.width.sigma_stat > 0 || f.width.sigma_geometry > 0)
       std::cout << "    " << WidthName(f.model.family) << "'s sigma " << std::setprecision(3)

@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <random>
+#include <vector>
 
 namespace gonio::acquisition {
 namespace {
@@ -55,6 +56,49 @@ TEST(RectAccumulator, TheFramesCommonScatterIsFoundAbovePixelNoise) {
     weight += 4;
   }
   EXPECT_NEAR(std::sqrt(excess / weight), 200, 0.05 * 200);
+}
+
+// NonIncreasingFit against the definition: among all splits of the sequence into runs, each
+// replaced by its weighted mean, the one with non-increasing means and the least weighted sum of
+// squares (enumerated; the isotonic fit is always such a split).
+TEST(NonIncreasingFit, IsTheLeastSquaresNonIncreasingSequence) {
+  EXPECT_EQ(NonIncreasingFit(std::vector<double>{3, 2, 1}, std::vector<double>{1, 1, 1}),
+            (std::vector<double>{3, 2, 1}));  // already in order: unchanged
+  EXPECT_EQ(NonIncreasingFit(std::vector<double>{1, 3, 2}, std::vector<double>{1, 1, 1}),
+            (std::vector<double>{2, 2, 2}));
+  const auto weighted = NonIncreasingFit(std::vector<double>{0, 1}, std::vector<double>{3, 1});
+  EXPECT_DOUBLE_EQ(weighted[0], 0.25);
+  EXPECT_DOUBLE_EQ(weighted[1], 0.25);
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> z(0, 1);
+  std::uniform_real_distribution<double> u(0.1, 10);
+  for (int trial = 0; trial < 200; ++trial) {
+    const int n = 1 + trial % 7;
+    std::vector<double> v(n), w(n);
+    for (int i = 0; i < n; ++i) v[i] = z(rng) - 0.3 * i, w[i] = u(rng);
+    const auto fit = NonIncreasingFit(v, w);
+    ASSERT_EQ(fit.size(), v.size());
+    double best = 1e300;
+    std::vector<double> best_fit;
+    for (unsigned cuts = 0; cuts < (1u << (n - 1)); ++cuts) {  // bit i: a run ends after i
+      std::vector<double> f(n);
+      double prev = 1e300, sse = 0;
+      bool ordered = true;
+      for (int a = 0; a < n && ordered;) {
+        int b = a;
+        while (b < n - 1 && !(cuts >> b & 1u)) ++b;
+        double sw = 0, swv = 0;
+        for (int i = a; i <= b; ++i) sw += w[i], swv += w[i] * v[i];
+        const double m = swv / sw;
+        ordered = m <= prev;
+        prev = m;
+        for (int i = a; i <= b; ++i) f[i] = m, sse += w[i] * (v[i] - m) * (v[i] - m);
+        a = b + 1;
+      }
+      if (ordered && sse < best) best = sse, best_fit = f;
+    }
+    for (int i = 0; i < n; ++i) EXPECT_NEAR(fit[i], best_fit[i], 1e-12) << "trial " << trial;
+  }
 }
 
 }  // namespace

@@ -232,6 +232,7 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
 
 Result<Measurement> Engine::Reduce(const Exposed& e) {
   Measurement m = e.m;
+  reduced_ = {};
   const double t = m.exposure_s;
   const DarkRecord* dark = e.dark;
   double norm = 1, monitor_rel_var = 0;
@@ -309,6 +310,7 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
     const double excess = acc.FrameMeansVariance() - m.pixel_var / m.rect_pixels;  // drift-free
     const double s2 = signal * signal;
     const double q = m.pixel_var / m.rect_pixels;
+    reduced_.excess = excess, reduced_.q = q, reduced_.s2 = s2;
     if (q > 0 && s2 > 0) {
       pool.sum2 += (m.frames - 1) * s2 * excess / (q * q);
       pool.weight += (m.frames - 1) * s2 * s2 / (q * q);
@@ -348,6 +350,9 @@ Result<Measurement> Engine::Complete(Exposed& e) {
            .sigma_stat = m->sigma_stat,
            .frames = m->frames,
            .lamp_key = std::llround(m->exposure_s * 1e6),
+           .excess = reduced_.excess,
+           .q = reduced_.q,
+           .s2 = reduced_.s2,
            .monitor_readings = m->monitor_w ? static_cast<double>(e.monitor.size()) : 0.0,
            .bg_pixel = std::nullopt,
            .bg_frames = 0,
@@ -366,16 +371,32 @@ Result<Measurement> Engine::Complete(Exposed& e) {
 }
 
 Status Engine::RefreshBudgets() {
-  // The lamp's relative variance by exposure, fitted non-increasing in the exposure (reduce.h):
-  // an exposure that a point or two met borrows from its neighbours instead of carrying its own
-  // few frames' noise. Unclamped until fitted, so that noise below 0 pulls as noise above does.
+  // The lamp's relative variance c by exposure, now with each point's excess weighted by its
+  // whole variance, 2 (q + c s^2)^2 / (n - 1), iterated from the run's pooled estimate: where the
+  // lamp is resolved, the brightest points' excess scatters with their lamp term too, and
+  // weights by q alone let two or three of them decide c (on antiglare c at 0.056 s moved by
+  // half between runs). Then fitted non-increasing in the exposure (reduce.h): an exposure that
+  // a point or two met borrows from its neighbours instead of carrying its own few frames'
+  // noise. Unclamped until fitted, so that noise below 0 pulls as noise above does.
   std::vector<std::int64_t> keys;
   std::vector<double> c, weight;
   for (const auto& [key, pool] : lamp_pools_) {  // by exposure, increasing
     if (!(pool.weight > 0)) continue;
+    double ck = pool.sum2 / pool.weight, info = pool.weight;
+    for (int round = 0; round < 5; ++round) {
+      double num = 0, den = 0;
+      for (const Pooled& p : pooled_) {
+        if (p.lamp_key != key || !(p.q > 0 && p.s2 > 0)) continue;
+        const double v = p.q + std::max(0.0, ck) * p.s2;
+        num += (p.frames - 1) * p.s2 * p.excess / (v * v);
+        den += (p.frames - 1) * p.s2 * p.s2 / (v * v);
+      }
+      if (!(den > 0)) break;  // the pool's points were stored by an earlier engine
+      ck = num / den, info = den;
+    }
     keys.push_back(key);
-    c.push_back(pool.sum2 / pool.weight);
-    weight.push_back(pool.weight);
+    c.push_back(ck);
+    weight.push_back(info);
   }
   std::map<std::int64_t, double> lamp;
   const std::vector<double> fitted = NonIncreasingFit(c, weight);

@@ -194,12 +194,16 @@ class Engine {
     double abs_value = 0, sigma_stat = 0;
     int frames = 0;
     std::int64_t lamp_key = 0;
+    // The lamp's inputs: the frames' means' excess scatter over q, the pixels' noise of a frame's
+    // mean, and the squared signal (all ADU^2; s2 = 0 where there were fewer than 2 frames).
+    double excess = 0, q = 0, s2 = 0;
     double monitor_readings = 0;     // 0: no monitor
     std::optional<double> bg_pixel;  // the background's pixel variance of a frame's mean, ADU^2
     int bg_frames = 0;
     double exposure_norm = 1;  // exposure times the monitor's normalisation
   };
   std::vector<Pooled> pooled_;
+  Pooled reduced_;  // Reduce's lamp inputs for Complete to record with the stored point
   Status RefreshBudgets();
   EngineStats stats_;
 };

@@ -105,6 +105,15 @@ class EngineOnSim : public ::testing::Test {
     return (r.m.value - expected) / r.m.sigma;
   }
 
+  // A new run of this geometry and exposure, measured to its end by an engine on the simulated
+  // instrument with its monitor: the stored rows (RunToEnd).
+  std::vector<MeasurementRow> Measure(const std::string& geometry, const std::string& exposure) {
+    auto [plan, run] = NewRun(geometry, exposure);
+    Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
+                  EngineOptions{.linear_limit_adu = 65000});
+    return RunToEnd(engine, plan, run);
+  }
+
   // Runs the plan to its end: the stored rows, or none (with a test failure) if the run or the
   // read failed.
   std::vector<MeasurementRow> RunToEnd(Engine& engine, const Plan& plan, std::int64_t run) {
@@ -167,14 +176,11 @@ TEST_F(EngineOnSim, SweepReproducesTheGroundTruthWithHonestUncertaintiesOverFour
 // engine reads back, not of the one it asked for.
 TEST_F(EngineOnSim, TheValueIsPerSecondOfTheExposureTheCameraApplied) {
   const double asked = 0.0123456789;
-  auto [plan, run] = NewRun(
+  const auto rows = Measure(
       "incidence_deg = [0]\nview_about = \"refracted\"\nview_from_deg = -5\nview_to_deg = 5\n"
       "view_step_deg = 5",
       "frames = 4\ninitial_s = 0.0123456789\nmin_s = 0.0123456789\nmax_s = 0.0123456789\n"
       "floor = 0");
-  Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
-                EngineOptions{.linear_limit_adu = 65000});
-  const auto rows = RunToEnd(engine, plan, run);
   ASSERT_EQ(rows.size(), 3u);
   const auto applied = inst.camera->Exposure();
   ASSERT_TRUE(applied.ok());
@@ -192,16 +198,13 @@ TEST_F(EngineOnSim, TheValueIsPerSecondOfTheExposureTheCameraApplied) {
 // their own excess (pixel noise) over their small signal became the lamp's relative variance, and
 // a tail's lamp term came out 0.4-1 of its statistical one (and a point after them on the flank
 // took it up, scaled by its signal). Every point now takes the run's final pool when Run returns,
-// one relative term per exposure, fitted with weights (s^2 / q)^2 that leave the faint points'
-// noise out of it.
+// one relative term per exposure, each point's excess weighted by its variance (q + c s^2)^2, which
+// leaves the faint points' noise out of it.
 TEST_F(EngineOnSim, ASteadyLampAddsNoLampTermAtOneExposure) {
-  auto [plan, run] = NewRun(
+  const auto rows = Measure(
       "incidence_deg = [0]\nview_about = \"refracted\"\n"
       "view_from_deg = -30\nview_to_deg = 30\nview_step_deg = 2.5",
       "frames = 4\ninitial_s = 0.05\nmin_s = 0.05\nmax_s = 0.05\nfloor = 0");
-  Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
-                EngineOptions{.linear_limit_adu = 65000});
-  const auto rows = RunToEnd(engine, plan, run);
   ASSERT_EQ(rows.size(), 25u);
   double lamp2 = 0, stat2 = 0, z2 = 0, share = 0, lo = 1e300, hi = 0;
   const double relative = rows[0].m.sigma_lamp / std::abs(rows[0].m.value);

@@ -304,7 +304,8 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   // and by what all pixels share (c s^2 for a relative fluctuation c of the signal s). c is
   // pooled by exposure as a weighted least-squares fit of excess = c s^2: the excess over n
   // frames scatters by sqrt(2 / (n - 1)) (q + c s^2), so a faint point, whose excess is its
-  // pixels' noise, weighs (s^2 / (q + c s^2))^2 less than a bright one. An unweighted ratio
+  // pixels' noise, weighs less than a bright one: here (s^2 / q)^2, the provisional estimate;
+  // RefreshBudgets iterates with the whole variance when the run ends. An unweighted ratio
   // (sum of excesses over sum of s^2) let a lobe's tails, sharing an exposure with its flank,
   // add their noise to the flank's c: with a steady lamp the lamp term reached the point's
   // statistical sigma (tests/acquisition/engine_sim_test.cc,

@@ -36,7 +36,7 @@ Result<double> Engine::MonitorW() {
 Result<const DarkRecord*> Engine::DarkFor(double exposure_s, const Plan& plan) {
   auto temp = camera_.TemperatureC();
   if (!temp.ok()) return temp.error();
-  const auto key = static_cast<std::int64_t>(std::llround(exposure_s * 1e6));
+  const std::int64_t key = ExposureKey(exposure_s);
   auto it = darks_.find(key);
   const double now = UnixNow();
   if (it != darks_.end() && now - it->second.taken_unix_s <= plan.darks.max_age_s &&
@@ -159,11 +159,12 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
     t = j.next_s;
   }
   last_exposure_s_ = t;
-  // The value is counts per second of the exposure asked for, while cameras apply it in steps
-  // (the simulated one in whole microseconds: the ladder's 3.162 ms comes out 0.28 us short, 9e-5
-  // of the peak's value). Reading it back (camera_.Exposure()) made an adaptive run take 4 times
-  // its exposure in EstimateBeforeTheFirstRun, for a reason not yet found: not done
-  // (docs/measurement.md).
+  // The exposure the camera applied, not the one asked for: cameras set it in steps (the simulated
+  // one in whole microseconds: the ladder's 3.162 ms came out 0.28 us short, 9e-5 of the peak's
+  // value; a real camera's step may be a sensor line), and the value is counts per second of it.
+  // Keys (darks, lamp pools, the planner's darks) take ExposureKey of either. A camera that cannot
+  // say keeps the request.
+  if (auto applied = camera_.Exposure(); applied.ok() && *applied > 0) t = *applied;
   m.exposure_s = t;
 
   // The monitor is read before every frame and after the last: its mean normalises the point,
@@ -355,7 +356,7 @@ Result<Measurement> Engine::Complete(Exposed& e) {
            .abs_value = std::abs(m->value),
            .sigma_stat = m->sigma_stat,
            .frames = m->frames,
-           .lamp_key = std::llround(m->exposure_s * 1e6),
+           .lamp_key = ExposureKey(e.dark->exposure_s),  // the step asked for, as the darks
            .excess = reduced_.excess,
            .q = reduced_.q,
            .s2 = reduced_.s2,

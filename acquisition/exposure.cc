@@ -13,6 +13,10 @@ namespace gonio::acquisition {
 
 double OnLadder(double t) { return std::pow(10.0, std::floor(8 * std::log10(t) + 1e-9) / 8); }
 
+std::int64_t ExposureKey(double t) { return std::llround(t * 1e6); }
+
+bool SameExposure(double a, double b) { return std::abs(a - b) <= 1e-3 * std::max(a, b); }
+
 ExposureJudgement JudgeExposure(const ExposurePolicy& x, double t, double peak_adu,
                                 double range_adu) {
   ExposureJudgement j;

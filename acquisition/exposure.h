@@ -21,6 +21,14 @@ namespace gonio::acquisition {
 // exposures, so the dark library serves them without a dark per point.
 double OnLadder(double t);
 
+// An exposure asked for, as a key (whole microseconds): the engine's dark library and lamp pools.
+std::int64_t ExposureKey(double t);
+// Whether two exposures are one: a stored point's is the one its camera applied (read back), in the
+// camera's steps (whole microseconds for the simulated one, a sensor line for some), not the
+// ladder's step the planner asks for; within 0.1 % they are one (the ladder's steps are 33 %
+// apart). An exact comparison split them, and priced a dark set for every adaptive choice.
+bool SameExposure(double a, double b);
+
 struct ExposureJudgement {
   bool too_bright = false;  // a rectangle pixel at or past `saturation` of the range
   bool too_dim = false;     // below max(floor, target / 4) of the range, and not yet at max_s

@@ -549,7 +549,7 @@ double EstimateSeconds(const Plan& plan, const std::vector<PlannedPoint>& points
   std::map<double, double> darks;  // exposure -> when its dark set was taken
   auto dark_for = [&](double t) {
     auto it = std::find_if(darks.begin(), darks.end(),
-                           [&](const auto& d) { return std::abs(d.first - t) <= 1e-3 * t; });
+                           [&](const auto& d) { return SameExposure(d.first, t); });
     if (it != darks.end() && clock - it->second <= plan.darks.max_age_s) return;
     const int frames = std::max(2, plan.darks.frames);  // the engine takes at least 2
     expose(t, frames);

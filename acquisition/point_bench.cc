@@ -36,8 +36,8 @@ Observation PointBench::Measure(const PlannedPoint& p, const ExposurePolicy& x, 
   }
   last_exposure_s_ = t;
   cost += x.frames * t + (x.frames - 1) * o_.readout_s;
-  auto dark =
-      std::find_if(darks_.begin(), darks_.end(), [&](const auto& d) { return d.first == t; });
+  auto dark = std::find_if(darks_.begin(), darks_.end(),
+                           [&](const auto& d) { return SameExposure(d.first, t); });
   if (dark == darks_.end() || spent_s_ + cost - dark->second > o_.dark_max_age_s) {
     if (dark == darks_.end()) dark = darks_.insert(darks_.end(), {t, 0});
     cost += o_.dark_frames * (t + o_.readout_s);

@@ -179,15 +179,27 @@ double NoiseModel::Sigma(double value) const {
 
 double NoiseModel::Take(double value) {
   const double cost = Cost(value), t = Exposure(value);
-  const auto dark = dark_taken.find(t);
-  if (dark == dark_taken.end() || clock_s - dark->second > dark_max_age_s) dark_taken[t] = clock_s;
+  if (auto dark = DarkAt(t); dark == dark_taken.end())
+    dark_taken[t] = clock_s;
+  else if (clock_s - dark->second > dark_max_age_s)
+    dark->second = clock_s;
   clock_s += cost;
   return cost;
 }
 
+std::map<double, double>::iterator NoiseModel::DarkAt(double t) {
+  return std::find_if(dark_taken.begin(), dark_taken.end(),
+                      [&](const auto& d) { return SameExposure(d.first, t); });
+}
+
+std::map<double, double>::const_iterator NoiseModel::DarkAt(double t) const {
+  return std::find_if(dark_taken.begin(), dark_taken.end(),
+                      [&](const auto& d) { return SameExposure(d.first, t); });
+}
+
 double NoiseModel::Cost(double value) const {
   const double t = Exposure(value);
-  const auto it = dark_taken.find(t);
+  const auto it = DarkAt(t);
   const bool dark = it != dark_taken.end() && clock_s - it->second <= dark_max_age_s;
   return exposure.frames * t + overhead_s + (dark ? 0 : dark_frames * t);
 }
@@ -202,9 +214,10 @@ Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
   // max_age_s.
   m.dark_max_age_s = darks.max_age_s;
   for (const Observation& o : seen) {
-    auto it = m.dark_taken.find(o.exposure_s);
-    if (it == m.dark_taken.end() || m.clock_s - it->second > darks.max_age_s)
+    if (auto it = m.DarkAt(o.exposure_s); it == m.dark_taken.end())
       m.dark_taken[o.exposure_s] = m.clock_s;
+    else if (m.clock_s - it->second > darks.max_age_s)
+      it->second = m.clock_s;
     m.clock_s += o.cost_s;
   }
   const std::vector<const Observation*> use = WithSignal(seen);

@@ -71,7 +71,7 @@ struct NoiseModel {
   double overhead_s = 0;
   int dark_frames = 4;
   double dark_max_age_s = 600;
-  std::map<double, double> dark_taken;  // exposure -> when its dark set was taken (clock_s)
+  std::map<double, double> dark_taken;  // exposure -> when its set was taken (clock_s)
   double clock_s = 0;                   // the run's bench seconds so far
   ExposurePolicy exposure;
   double Exposure(double value) const;
@@ -79,6 +79,9 @@ struct NoiseModel {
   double Cost(double value) const;
   // Cost, and the point taken: the clock runs on and its dark set, if it needed one, is taken.
   double Take(double value);
+  // The dark set taken at t (SameExposure), or none.
+  std::map<double, double>::iterator DarkAt(double t);
+  std::map<double, double>::const_iterator DarkAt(double t) const;
 };
 // Needs at least 3 points with a positive value; an error says what is missing.
 Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,

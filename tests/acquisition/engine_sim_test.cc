@@ -171,6 +171,30 @@ TEST_F(EngineOnSim, SweepReproducesTheGroundTruthWithHonestUncertaintiesOverFour
   std::filesystem::remove(db_path + ".csv");
 }
 
+// A camera applies its exposure in steps (the simulated one, as the Aravis fake camera's register,
+// in whole microseconds): the value is counts per second of the exposure applied, which the
+// engine reads back, not of the one it asked for.
+TEST_F(EngineOnSim, TheValueIsPerSecondOfTheExposureTheCameraApplied) {
+  const double asked = 0.0123456789;
+  auto [plan, run] = NewRun(
+      "incidence_deg = [0]\nview_about = \"refracted\"\nview_from_deg = -5\nview_to_deg = 5\n"
+      "view_step_deg = 5",
+      "frames = 4\ninitial_s = 0.0123456789\nmin_s = 0.0123456789\nmax_s = 0.0123456789\n"
+      "floor = 0");
+  Engine engine(*inst.stages, *inst.camera, inst.meter, *store,
+                EngineOptions{.linear_limit_adu = 65000});
+  const auto rows = RunToEnd(engine, plan, run);
+  ASSERT_EQ(rows.size(), 3u);
+  const auto applied = inst.camera->Exposure();
+  ASSERT_TRUE(applied.ok());
+  ASSERT_GT(std::abs(*applied - asked), 1e-7) << "the camera applied the request exactly";
+  for (const MeasurementRow& r : rows) {
+    EXPECT_DOUBLE_EQ(r.m.exposure_s, *applied) << "point " << r.point.index;
+    EXPECT_LT(std::abs(Z(r)), 5) << "point " << r.point.index << ": " << r.m.value << " +- "
+                                 << r.m.sigma;
+  }
+}
+
 // The lamp term is the frames' common-mode scatter beyond their pixels' noise, pooled by exposure.
 // With a steady lamp there is none, and the pool must not invent one. Issue #16's antiglare runs
 // showed how it did: a sweep's first points, its tails, met an empty pool at their exposure, so

@@ -186,6 +186,39 @@ TEST(Strategy, TheNoiseModelRecoversKnownCoefficients) {
   EXPECT_NE(few.error().message.find("needs 3 measured points"), std::string::npos);
 }
 
+// A stored point's exposure is the one its camera applied: the simulated camera truncates to whole
+// microseconds, so the ladder's 0.4216965 s is stored as 0.421696 s. The planner's dark library is
+// the same for both: a point at a seen exposure is priced without a dark set (an exact comparison
+// priced one for every choice, and an adaptive run in EstimateBeforeTheFirstRun took 1746 s of
+// exposure for 426 s).
+TEST(Strategy, TheNoiseModelsDarksAreTheOnesTakenAtTheExposuresTheCameraApplied) {
+  auto plan = LoadPlanText(PlanText(""), "s.toml", Context());
+  ASSERT_TRUE(plan.ok());
+  plan->darks.max_age_s = 1e9;  // every dark set taken is fresh
+  const Provisional truth{0.344, 1, 0.002, 1.51};
+  auto seen = KnownNoise(truth, 3e-4, 2e-6, 1e-6, ExpandGrid(*plan, Context()));
+  auto exact = CalibrateNoise(seen, plan->exposure, plan->darks);
+  ASSERT_TRUE(exact.ok()) << exact.error().message;
+  int moved = 0;
+  for (Observation& o : seen) {
+    const double applied = std::floor(o.exposure_s * 1e6) * 1e-6;
+    moved += applied != o.exposure_s;
+    o.exposure_s = applied;
+  }
+  ASSERT_GT(moved, 0) << "no exposure off whole microseconds: a weak test";
+  auto applied = CalibrateNoise(seen, plan->exposure, plan->darks);
+  ASSERT_TRUE(applied.ok()) << applied.error().message;
+  EXPECT_EQ(applied->dark_taken.size(), exact->dark_taken.size());
+  for (const Observation& o : seen) {
+    // The value this point had: the planner asks its ladder step, whose dark was taken.
+    const double cost = applied->Cost(o.value);
+    EXPECT_NEAR(cost, exact->Cost(o.value), 1e-9) << "at " << o.exposure_s << " s";
+    EXPECT_LT(cost, (plan->exposure.frames + plan->darks.frames) * applied->Exposure(o.value) +
+                        applied->overhead_s - 1e-9)
+        << "a dark priced at " << o.exposure_s << " s, which has one";
+  }
+}
+
 // The test's own variance of ln alpha with the points seen and one more: F built from scratch
 // with its own derivative (a forward difference) and inverted by Gaussian elimination.
 double VarianceWith(const Provisional& m, const std::vector<Observation>& seen,

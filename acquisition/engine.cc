@@ -275,10 +275,14 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   m.value = (m.rect_mean - dark->mean) / t / norm;
   // With a measured background the dark is subtracted from both and cancels: the point's own
   // frames' noise is all of stat.
-  const double var_mean =
-      m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) +
-      (e.background ? 0.0 : dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames)));
+  // The dark set's own error is in every point subtracted with it: sigma_dark says how much of
+  // sigma_stat it is, so that a fit can take it as one error per set (issue #16's antiglare runs
+  // at ambient: the 20 s set's error, shared by 13 points, moved the width by a sigma).
+  const double var_dark =
+      e.background ? 0.0 : dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames));
+  const double var_mean = m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) + var_dark;
   m.sigma_stat = std::sqrt(var_mean) / (t * norm);
+  m.sigma_dark = std::sqrt(var_dark) / (t * norm);
   double level = dark->mean;  // what the lamp's signal is counted above
   if (e.background) {
     const RectAccumulator& b = e.bg;
@@ -313,7 +317,7 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   // ASteadyLampAddsNoLampTermAtOneExposure).
   const double signal = m.rect_mean - level;
   if (m.frames >= 2) {
-    Pool& pool = lamp_pools_[static_cast<std::int64_t>(std::llround(t * 1e6))];
+    Pool& pool = lamp_pools_[ExposureKey(dark->exposure_s)];  // the step asked for
     const double excess = acc.FrameMeansVariance() - m.pixel_var / m.rect_pixels;  // drift-free
     const double s2 = signal * signal;
     const double q = m.pixel_var / m.rect_pixels;

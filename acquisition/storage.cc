@@ -112,6 +112,11 @@ ALTER TABLE plan_points ADD COLUMN predicted_s REAL;
 ALTER TABLE measurements ADD COLUMN background REAL;
 ALTER TABLE measurements ADD COLUMN sigma_background REAL;
 )sql",
+    // 8: the part of sigma_stat that the point's dark set makes, which every point subtracted
+    // with that set shares (#16). NULL for earlier rows.
+    R"sql(
+ALTER TABLE measurements ADD COLUMN sigma_dark REAL;
+)sql",
 };
 constexpr int kMigrationCount = sizeof kMigrations / sizeof kMigrations[0];
 static_assert(kMigrationCount == kSchemaVersion);
@@ -453,8 +458,8 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
          "INSERT INTO measurements(run_id, idx, sample_read_deg, arm_read_deg, azimuth_read_deg, "
          "exposure_s, frames, temperature_c, monitor_w, rect_mean, rect_sd, pixel_var, "
          "rect_pixels, rect_saturated, dark_id, value, sigma, flags, ranging_tries, sigma_stat, "
-         "sigma_lamp, sigma_monitor, exposed_s, background, sigma_background) "
-         "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
+         "sigma_lamp, sigma_monitor, exposed_s, background, sigma_background, sigma_dark) "
+         "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)");
   i.Bind(1, run).Bind(2, m.index).Bind(3, m.sample_read_deg).Bind(4, m.arm_read_deg);
   i.Bind(5, m.azimuth_read_deg).Bind(6, m.exposure_s).Bind(7, m.frames).Bind(8, m.temperature_c);
   i.Bind(9, m.monitor_w).Bind(10, m.rect_mean).Bind(11, m.rect_sd).Bind(12, m.pixel_var);
@@ -470,6 +475,7 @@ Status Storage::StoreMeasurement(std::int64_t run, const Measurement& m) {
   i.Bind(23, m.exposed_s);
   i.Bind(24, m.background);
   i.Bind(25, m.background ? std::optional<double>(m.sigma_background) : std::nullopt);
+  i.Bind(26, m.sigma_dark);
   if (i.Step() != SQLITE_DONE)
     return fail(
         i.Fail("storing point " + std::to_string(m.index) + " of run " + std::to_string(run)));
@@ -511,7 +517,8 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
          "m.frames, m.temperature_c, m.monitor_w, m.rect_mean, m.rect_sd, m.pixel_var, "
          "m.rect_pixels, m.rect_saturated, m.dark_id, m.value, m.sigma, m.flags, m.ranging_tries, "
          "p.side, m.sigma_stat, m.sigma_lamp, m.sigma_monitor, m.exposed_s, p.planned_exposure_s, "
-         "p.predicted_s, d.rect_mean, m.background, m.sigma_background FROM measurements m "
+         "p.predicted_s, d.rect_mean, m.background, m.sigma_background, m.sigma_dark "
+         "FROM measurements m "
          "JOIN plan_points p ON p.run_id=m.run_id AND p.idx=m.idx "
          "LEFT JOIN darks d ON d.id=m.dark_id "
          "WHERE m.run_id=? ORDER BY p.idx");
@@ -553,6 +560,7 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
     if (!q.Null(31)) r.dark_rect_mean = q.D(31);
     if (!q.Null(32)) r.m.background = q.D(32);
     r.m.sigma_background = q.Null(33) ? 0 : q.D(33);
+    r.m.sigma_dark = q.Null(34) ? 0 : q.D(34);
     out.push_back(r);
   }
   if (rc != SQLITE_DONE) return q.Fail("reading measurements");
@@ -681,7 +689,8 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
   if (info->response) out << "# response: " << *info->response << "\n";
   out << "theta_l_deg,theta_v_deg,phi_l_deg,phi_v_deg,value,sigma,exposure_s,frames,"
          "rect_mean_adu,temperature_c,monitor_w,flags,side,sample_read_deg,arm_read_deg,"
-         "azimuth_read_deg,sigma_stat,sigma_lamp,sigma_monitor,background,sigma_background\n";
+         "azimuth_read_deg,sigma_stat,sigma_lamp,sigma_monitor,background,sigma_background,"
+         "dark_set,sigma_dark\n";
   out.precision(9);
   for (const MeasurementRow& r : *rows) {
     out << r.point.theta_l_deg << "," << r.point.theta_v_deg << "," << r.point.phi_deg << ","
@@ -696,6 +705,11 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
       out << *r.m.background << "," << r.m.sigma_background;
     else
       out << ",";
+    // The dark set the point was subtracted with (points of one set share its error, sigma_dark,
+    // a part of sigma_stat); empty where there is none (a point stored without one).
+    out << ",";
+    if (r.m.dark_id > 0) out << r.m.dark_id;
+    out << "," << r.m.sigma_dark;
     out << "\n";
   }
   return OkStatus();

@@ -22,7 +22,7 @@ struct sqlite3;
 
 namespace gonio::acquisition {
 
-inline constexpr int kSchemaVersion = 7;
+inline constexpr int kSchemaVersion = 8;
 
 // A run's status, stored as text ("planned", "running", ...) and turned into a string only where
 // it is stored or sent.
@@ -89,6 +89,11 @@ struct Measurement {
   // the lamp's fluctuation between the point's frames; the monitor normalisation; the measured
   // background's own uncertainty (0 when none was measured).
   double sigma_stat = 0, sigma_lamp = 0, sigma_monitor = 0, sigma_background = 0;
+  // The part of sigma_stat that the dark set's own error makes: every point subtracted with the
+  // same dark set (dark_id) shares it, so it is not independent from point to point as the rest
+  // of sigma is (docs/measurement.md). 0 with a measured background (the dark cancels) and for
+  // points stored before schema 8.
+  double sigma_dark = 0;
   // The stray-light background measured with the beam blocked ([background] plans), in value's
   // units, already subtracted from value; nullopt when the plan measured none.
   std::optional<double> background;

@@ -13,7 +13,11 @@
 #   SIM_THICKNESS  the plate's thickness in mm, for the simulated sample and the catalogue's
 #              specimens alike (the sphere centre then lies off the rough face unless 6)
 #   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later), and
-#              gonio-sim's truth.csv (what each frame saw: bench/coverage/truth_angles.py)
+#              gonio-sim's truth.csv (what each frame saw: bench/coverage/truth_angles.py,
+#              value_check.py, lamp_check.py)
+#   COVERAGE_COOL  the CCD's setpoint (C) before the first run, as config/schedule_demo.toml cools
+#              it: default -10; "off" runs at ambient (20 C: dark current 2^(30/6) = 32 times,
+#              whose error each exposure's dark set shares among its points; docs/measurement.md)
 # Holds the GigE Vision port while it runs: no other simulated camera may run meanwhile.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -36,11 +40,19 @@ trap 'stop_gonio_sim; rm -rf "$work"' EXIT
 start_gonio_sim "$build/sim/gonio-sim" "$speed" "$work" "$PWD" --config "$sim_config" \
   ${COVERAGE_KEEP:+--truth-log "$COVERAGE_KEEP/truth.csv"}
 truth=$(sed -n 's/^alpha *= *\([0-9.]*\).*/\1/p' "$sim_config" | head -1)
+cool=${COVERAGE_COOL:--10}
+cool_label="at $cool C"
+[[ "$cool" != off ]] || cool_label="uncooled (ambient)"
+if [[ "$cool" != off ]]; then
+  "$build/daemon/gonio-hw" -c "$work/instrument.toml" camera cool --setpoint "$cool" \
+    --tolerance 0.5 --hold 5 --timeout 300 > "$work/cool.log" 2>&1 ||
+    { echo "instrument_coverage: cooling the CCD failed:" >&2; cat "$work/cool.log" >&2; exit 1; }
+fi
 echo "# alpha's coverage through the whole simulated instrument"
 echo
 echo "$runs runs of \`$plan\` on gonio-sim at x$speed (config/sim.toml, Beckmann alpha = $truth," \
-  "a ${SIM_THICKNESS:-6.0} mm plate), fitted with \`gonio-fit --model beckmann\`. Command:" \
-  "\`${SIM_ALPHA:+SIM_ALPHA=$SIM_ALPHA }${SIM_THICKNESS:+SIM_THICKNESS=$SIM_THICKNESS }bench/instrument_coverage.sh $build $runs $plan $speed\`."
+  "a ${SIM_THICKNESS:-6.0} mm plate, the CCD $cool_label), fitted with \`gonio-fit --model beckmann\`. Command:" \
+  "\`${COVERAGE_COOL:+COVERAGE_COOL=$COVERAGE_COOL }${SIM_ALPHA:+SIM_ALPHA=$SIM_ALPHA }${SIM_THICKNESS:+SIM_THICKNESS=$SIM_THICKNESS }bench/instrument_coverage.sh $build $runs $plan $speed\`."
 echo
 for i in $(seq "$runs"); do
   "$build/daemon/gonio-acquire" -c "$work/instrument.toml" --samples "$samples" \

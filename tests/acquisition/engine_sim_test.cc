@@ -192,6 +192,14 @@ TEST_F(EngineOnSim, TheValueIsPerSecondOfTheExposureTheCameraApplied) {
     EXPECT_DOUBLE_EQ(r.m.exposure_s, *applied) << "point " << r.point.index;
     EXPECT_LT(std::abs(Z(r)), 5) << "point " << r.point.index << ": " << r.m.value << " +- "
                                  << r.m.sigma;
+    // One exposure, one dark set: each point's sigma_dark is that set's error, the same in
+    // counts for every point (the value's unit differs by the monitor's reading), and a part of
+    // sigma_stat.
+    EXPECT_EQ(r.m.dark_id, rows[0].m.dark_id);
+    EXPECT_GT(r.m.sigma_dark, 0);
+    EXPECT_LT(r.m.sigma_dark, r.m.sigma_stat);
+    EXPECT_NEAR(r.m.sigma_dark * *r.m.monitor_w, rows[0].m.sigma_dark * *rows[0].m.monitor_w,
+                1e-12 * rows[0].m.sigma_dark * *rows[0].m.monitor_w);
   }
 }
 
@@ -427,6 +435,7 @@ TEST_F(EngineWithBeamBlock, ALostBackgroundFrameIsRetakenWithTheBeamBlocked) {
     // background's frames have less light): a frame of the lobe among them would also widen the
     // scatter its sigma is made of.
     EXPECT_LT(r.m.sigma_background, 2 * r.m.sigma_stat) << "point " << r.point.index;
+    EXPECT_EQ(r.m.sigma_dark, 0) << "the dark cancels in a background-subtracted value";
     EXPECT_LT(std::abs(*r.m.background - stray), 5 * r.m.sigma_background)
         << "point " << r.point.index << ": background " << *r.m.background << " +- "
         << r.m.sigma_background << ", the scene's " << stray;

@@ -93,7 +93,7 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
   // Back to version 1: without the jobs (2), the points' side (3), the runs' response and the
   // points' budget (4), the runs' estimate and the points' exposure (5), the chosen points'
-  // plan (6), the measured backgrounds (7).
+  // plan (6), the measured backgrounds (7), the dark set's share of sigma_stat (8).
   ASSERT_EQ(sqlite3_exec(db,
                          "DROP INDEX jobs_by_state; DROP TABLE jobs; "
                          "ALTER TABLE plan_points DROP COLUMN planned_exposure_s; "
@@ -109,13 +109,14 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
                          "ALTER TABLE measurements DROP COLUMN sigma_monitor; "
                          "ALTER TABLE measurements DROP COLUMN background; "
                          "ALTER TABLE measurements DROP COLUMN sigma_background; "
+                         "ALTER TABLE measurements DROP COLUMN sigma_dark; "
                          "PRAGMA user_version=1",
                          nullptr, nullptr, nullptr),
             SQLITE_OK);
   sqlite3_close(db);
   auto s = Storage::Open(path);
   ASSERT_TRUE(s.ok()) << s.error().message;
-  EXPECT_EQ((*s)->schema_version(), 7);
+  EXPECT_EQ((*s)->schema_version(), 8);
   auto rows = (*s)->Measurements(run);
   ASSERT_TRUE(rows.ok());
   ASSERT_EQ(rows->size(), 1u);
@@ -123,6 +124,7 @@ TEST_F(StorageTest, AVersionOneDatabaseIsMigratedAndKeepsItsRuns) {
   // No background was measured for it (schema 7): none subtracted, none in sigma.
   EXPECT_FALSE((*rows)[0].m.background.has_value());
   EXPECT_EQ((*rows)[0].m.sigma_background, 0);
+  EXPECT_EQ((*rows)[0].m.sigma_dark, 0);  // unknown for it (schema 8): none said shared
   // An older run has no estimate, and its points' exposure is unknown, not zero.
   auto info = (*s)->GetRun(run);
   ASSERT_TRUE(info.ok());
@@ -301,13 +303,50 @@ TEST_F(StorageTest, AMeasuredBackgroundIsStoredExportedAndMarksTheSample) {
   std::ostringstream out;
   ASSERT_TRUE((*s)->ExportCsv(run, out).ok());
   const std::string text = out.str();
-  EXPECT_NE(text.find(",background,sigma_background\n"), std::string::npos) << text;
-  EXPECT_NE(text.find(",3.25,0.0625\n"), std::string::npos) << text;
+  EXPECT_NE(text.find(",background,sigma_background,dark_set,sigma_dark\n"), std::string::npos)
+      << text;
+  EXPECT_NE(text.find(",3.25,0.0625,,0\n"), std::string::npos) << text;
   auto samples = fitting::ParseSamplesCsv(text, "export");
   ASSERT_TRUE(samples.ok()) << samples.error().message;
   ASSERT_EQ(samples->size(), 2u);
   EXPECT_TRUE((*samples)[0].background_subtracted);
   EXPECT_FALSE((*samples)[1].background_subtracted);
+}
+
+// The dark set's share of sigma_stat (schema 8) is stored with the point and exported beside the
+// set's id, so that the points that share it can be told: two points of one set carry its id.
+TEST_F(StorageTest, TheDarkSetsShareOfSigmaIsStoredAndExportedWithTheSet) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  const auto run = NewRun(**s, 3);
+  DarkRecord d;
+  d.exposure_s = 0.5, d.frames = 4, d.mean = 510, d.pixel_var = 64;
+  auto dark = (*s)->StoreDark(d);
+  ASSERT_TRUE(dark.ok()) << dark.error().message;
+  for (int k = 0; k < 2; ++k) {
+    Measurement m = M(k, 100 + k);
+    m.dark_id = *dark;
+    m.sigma_stat = 0.1, m.sigma_dark = 0.046875;
+    ASSERT_TRUE((*s)->StoreMeasurement(run, m).ok());
+  }
+  ASSERT_TRUE((*s)->StoreMeasurement(run, M(2, 102)).ok());  // no dark set
+  auto rows = (*s)->Measurements(run);
+  ASSERT_TRUE(rows.ok());
+  ASSERT_EQ(rows->size(), 3u);
+  EXPECT_EQ((*rows)[1].m.sigma_dark, 0.046875);
+  EXPECT_EQ((*rows)[1].m.dark_id, *dark);
+  EXPECT_EQ((*rows)[2].m.sigma_dark, 0);
+  std::ostringstream out;
+  ASSERT_TRUE((*s)->ExportCsv(run, out).ok());
+  const std::string text = out.str();
+  const std::string shared = "," + std::to_string(*dark) + ",0.046875\n";
+  std::size_t at = text.find(shared), count = 0;
+  for (; at != std::string::npos; at = text.find(shared, at + 1)) ++count;
+  EXPECT_EQ(count, 2u) << text;
+  EXPECT_NE(text.find(",,0\n"), std::string::npos) << "the point without a set: " << text;
+  auto samples = fitting::ParseSamplesCsv(text, "export");
+  ASSERT_TRUE(samples.ok()) << samples.error().message;
+  EXPECT_EQ(samples->size(), 3u);
 }
 
 }  // namespace

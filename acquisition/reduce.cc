@@ -49,7 +49,14 @@ double RectAccumulator::PixelVariance() const {
   // rectangle, back in ADU^2 at the mean level.
   const cv::Mat1d v = (rel_sum2_ - rel_sum_.mul(rel_sum_) / n_) / (n_ - 1);
   const double level = Mean();
-  return std::max(0.0, cv::mean(v)[0]) * level * level;
+  // Dividing by the frame's mean also takes out each pixel's own share of that mean: with r_p a
+  // pixel's level over the rectangle's and noise of variance proportional to the level (shot),
+  // what is left is (1 - mean(r_p^2) / P) of it, P pixels (11/12 for a uniform 2 x 6 px
+  // rectangle, antiglare's: sigma_stat was 4 % short). Corrected; a rectangle whose light is in
+  // so few pixels that half its noise moves the mean is taken at half.
+  const cv::Mat1d r = rel_sum_ / n_;
+  const double keep = std::max(0.5, 1 - cv::mean(r.mul(r))[0] / rect_.area());
+  return std::max(0.0, cv::mean(v)[0]) * level * level / keep;
 }
 
 std::vector<double> NonIncreasingFit(std::span<const double> values,

@@ -57,6 +57,38 @@ struct StageGroups {
   double prior_deg = 0;
 };
 
+// The dark sets a fit models (DarkUse): per sample its set's index (-1: none) and its sigma_dark.
+struct DarkSets {
+  std::vector<int> set;
+  std::vector<double> sigma;
+  int count = 0;
+  int samples = 0;
+};
+
+// The sets of `samples` whose shared error matters (fitter.h, DarkUse), indexed from 0.
+DarkSets DarkSetsOf(std::span<const Sample> samples) {
+  std::map<int, std::pair<int, double>> sets;  // dark_set -> samples, sum of (sigma_dark/sigma)^2
+  for (const Sample& s : samples)
+    if (s.dark_set >= 0 && s.sigma_dark > 0) {
+      auto& [n, share] = sets[s.dark_set];
+      ++n;
+      share += std::pow(s.sigma_dark / s.sigma, 2);
+    }
+  std::map<int, int> index;
+  DarkSets d;
+  for (const auto& [id, use] : sets)
+    if (use.first >= 2 && use.second >= 0.01) index[id] = d.count++;
+  d.set.assign(samples.size(), -1);
+  d.sigma.assign(samples.size(), 0.0);
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    if (auto it = index.find(samples[i].dark_set); it != index.end() && samples[i].sigma_dark > 0) {
+      d.set[i] = it->second;
+      d.sigma[i] = samples[i].sigma_dark;
+      ++d.samples;
+    }
+  return d;
+}
+
 // The options a solve runs with: the caller's, and the sample stage's groups once WithGeometry
 // has them. The constructor is explicit so that no helper drops the groups by taking a
 // FitOptions and passing it on.
@@ -78,28 +110,38 @@ T FixedEtaValue(const ModelSpec& model, const SampleModel& sm, const T& width) {
 // Residual with eta free: the whole model on Jets, over the sample's pairs.
 // `delta` is the sample stage's offset of the sample's group, entering through the slope
 // (StageGroups); a sample in no group has the overload without it (no derivative to carry).
+// With dark sets (DarkSets) every sample also takes its set's nuisance `z` through `dark`, its
+// sigma_dark (a sample in none, or in no group, gets a constant block of 0).
 struct Residual {
   ModelSpec model;
   const SampleModel* sm;
-  double value, inv_sigma, floor_unit, slope;
+  double value, inv_sigma, floor_unit, slope, dark = 0;
 
   template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* eta_raw, const T* floor,
                   T* r) const {
     const T zero(0);
-    return (*this)(log_width, log_k, eta_raw, floor, &zero, r);
+    return (*this)(log_width, log_k, eta_raw, floor, &zero, &zero, r);
   }
 
   template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* eta_raw, const T* floor,
                   const T* delta, T* r) const {
+    const T zero(0);
+    return (*this)(log_width, log_k, eta_raw, floor, delta, &zero, r);
+  }
+
+  template <typename T>
+  bool operator()(const T* log_width, const T* log_k, const T* eta_raw, const T* floor,
+                  const T* delta, const T* z, T* r) const {
     using std::exp;
     const T width = exp(log_width[0]), k = exp(log_k[0]), eta = EtaFromRaw(eta_raw[0]);
     T m(0);
     for (std::size_t j = 0; j < sm->g.size(); ++j)
       m += T(sm->w[j]) *
            MeasurementModel(model, Vec3<T>(sm->g[j].l), Vec3<T>(sm->g[j].v), width, k, eta);
-    r[0] = (m + floor[0] * T(floor_unit) + T(slope) * delta[0] - T(value)) * T(inv_sigma);
+    r[0] = (m + floor[0] * T(floor_unit) + T(slope) * delta[0] + T(dark) * z[0] - T(value)) *
+           T(inv_sigma);
     return ResidualFinite(r[0]);
   }
 };
@@ -109,19 +151,27 @@ struct Residual {
 struct FixedEtaResidual {
   ModelSpec model;
   const SampleModel* sm;
-  double value, inv_sigma, floor_unit, slope;
+  double value, inv_sigma, floor_unit, slope, dark = 0;
 
   template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* floor, T* r) const {
     const T zero(0);
-    return (*this)(log_width, log_k, floor, &zero, r);
+    return (*this)(log_width, log_k, floor, &zero, &zero, r);
   }
 
   template <typename T>
   bool operator()(const T* log_width, const T* log_k, const T* floor, const T* delta, T* r) const {
+    const T zero(0);
+    return (*this)(log_width, log_k, floor, delta, &zero, r);
+  }
+
+  template <typename T>
+  bool operator()(const T* log_width, const T* log_k, const T* floor, const T* delta, const T* z,
+                  T* r) const {
     using std::exp;
     const T m = exp(log_k[0]) * FixedEtaValue(model, *sm, exp(log_width[0]));
-    r[0] = (m + floor[0] * T(floor_unit) + T(slope) * delta[0] - T(value)) * T(inv_sigma);
+    r[0] = (m + floor[0] * T(floor_unit) + T(slope) * delta[0] + T(dark) * z[0] - T(value)) *
+           T(inv_sigma);
     return ResidualFinite(r[0]);
   }
 };
@@ -274,7 +324,10 @@ struct LocalFit {
   // always 0 and not in the problem; sized before the problem is built, never after (the
   // problem points into it).
   std::vector<double> delta;
-  std::vector<int> row_sample;  // the sample of each residual row, -1 for a prior's
+  // The dark sets' nuisances (DarkSets), one per set and a last one for samples in none, as delta.
+  std::vector<double> dark_z;
+  // The sample of each residual row: -1 for a stage offset's prior, -2 for a dark set's.
+  std::vector<int> row_sample;
   double cost = std::numeric_limits<double>::infinity();
   bool converged = false;
   int iterations = 0;
@@ -290,8 +343,14 @@ struct Problem {
   bool fit_floor = false;
   double floor_unit = 1;  // the floor parameter is floor / floor_unit: O(1) for the solver
   const StageGroups* stage = nullptr;
+  const DarkSets* dark = nullptr;  // nullptr or none: no set modelled
 
   int Groups() const { return stage ? static_cast<int>(stage->groups.size()) : 0; }
+  int Sets() const { return dark ? dark->count : 0; }
+  // The index into LocalFit::dark_z of sample i's set (the last, always 0, for none), and its
+  // sigma_dark.
+  int SetOf(std::size_t i) const { return Sets() > 0 && dark->set[i] >= 0 ? dark->set[i] : Sets(); }
+  double DarkOf(std::size_t i) const { return Sets() > 0 ? dark->sigma[i] : 0; }
   // The index into LocalFit::delta of sample i's offset (the last, always 0, for none), and its
   // slope.
   int DeltaOf(std::size_t i) const {
@@ -333,13 +392,17 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
   f.x[1] = std::log(k);
   f.x[2] = RawFromEta(eta);
   f.x[3] = floor / p.floor_unit;
-  const int groups = p.Groups();
+  const int groups = p.Groups(), sets = p.Sets();
   f.delta.assign(groups + 1, 0.0);
+  f.dark_z.assign(sets + 1, 0.0);
   f.problem = std::make_unique<ceres::Problem>();
   ceres::Problem* problem = f.problem.get();
   const bool automatic = o.derivatives == Derivatives::kAutomatic;
   const std::size_t n_samples = p.samples.size();
-  if (!o.fit_eta && o.loss == Loss::kNone) {
+  // The batch needs its samples' nuisances to be one block; a dark set spans the stage's groups,
+  // so with sets every sample has a block of its own.
+  const bool per_sample = o.fit_eta || o.loss != Loss::kNone || sets > 0;
+  if (!per_sample) {
     // One block per consecutive run of samples sharing an offset (the whole set without groups).
     for (std::size_t a = 0, b = 0; a < n_samples; a = b) {
       while (b < n_samples && p.DeltaOf(b) == p.DeltaOf(a)) ++b;
@@ -359,28 +422,33 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
       for (std::size_t i = a; i < b; ++i) f.row_sample.push_back(static_cast<int>(i));
     }
   }
-  for (std::size_t i = 0; i < n_samples && (o.fit_eta || o.loss != Loss::kNone); ++i) {
+  for (std::size_t i = 0; i < n_samples && per_sample; ++i) {
     const Sample& s = p.samples[i];
     ceres::LossFunction* loss = nullptr;
     if (o.loss == Loss::kHuber) loss = new ceres::HuberLoss(o.loss_scale);
     if (o.loss == Loss::kCauchy) loss = new ceres::CauchyLoss(o.loss_scale);
-    const bool grouped = p.InGroup(i);
+    // With dark sets, every sample takes a stage offset and a set's nuisance (the constant last
+    // ones where it has none); without, the offset only where it is in a group.
+    const bool grouped = p.InGroup(i) || sets > 0;
     ceres::CostFunction* cost = nullptr;
     if (o.fit_eta) {
-      auto* r =
-          new Residual{o.model, &p.models[i], s.value, 1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
-      cost = grouped ? MakeCost<Residual, 1, 1, 1, 1, 1, 1>(r, automatic)
-                     : MakeCost<Residual, 1, 1, 1, 1, 1>(r, automatic);
+      auto* r = new Residual{o.model,      &p.models[i], s.value,    1 / s.sigma,
+                             p.floor_unit, p.SlopeOf(i), p.DarkOf(i)};
+      cost = sets > 0  ? MakeCost<Residual, 1, 1, 1, 1, 1, 1, 1>(r, automatic)
+             : grouped ? MakeCost<Residual, 1, 1, 1, 1, 1, 1>(r, automatic)
+                       : MakeCost<Residual, 1, 1, 1, 1, 1>(r, automatic);
     } else {
-      auto* r = new FixedEtaResidual{o.model,     &p.models[i], s.value,
-                                     1 / s.sigma, p.floor_unit, p.SlopeOf(i)};
-      cost = grouped ? MakeCost<FixedEtaResidual, 1, 1, 1, 1, 1>(r, automatic)
-                     : MakeCost<FixedEtaResidual, 1, 1, 1, 1>(r, automatic);
+      auto* r = new FixedEtaResidual{o.model,      &p.models[i], s.value,    1 / s.sigma,
+                                     p.floor_unit, p.SlopeOf(i), p.DarkOf(i)};
+      cost = sets > 0  ? MakeCost<FixedEtaResidual, 1, 1, 1, 1, 1, 1>(r, automatic)
+             : grouped ? MakeCost<FixedEtaResidual, 1, 1, 1, 1, 1>(r, automatic)
+                       : MakeCost<FixedEtaResidual, 1, 1, 1, 1>(r, automatic);
     }
     std::vector<double*> blocks = {&f.x[0], &f.x[1]};
     if (o.fit_eta) blocks.push_back(&f.x[2]);
     blocks.push_back(&f.x[3]);
     if (grouped) blocks.push_back(&f.delta[p.DeltaOf(i)]);
+    if (sets > 0) blocks.push_back(&f.dark_z[p.SetOf(i)]);
     problem->AddResidualBlock(cost, loss, blocks);
     f.row_sample.push_back(static_cast<int>(i));
   }
@@ -390,6 +458,14 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
         &f.delta[g]);
     f.row_sample.push_back(-1);
   }
+  for (int d = 0; d < sets; ++d) {
+    problem->AddResidualBlock(MakeCost<PriorResidual, 1, 1>(new PriorResidual{1.0}, true), nullptr,
+                              &f.dark_z[d]);
+    f.row_sample.push_back(-2);
+  }
+  // The "none" offset and nuisance stay 0 (they are in the problem only with dark sets).
+  for (double* none : {&f.delta[groups], &f.dark_z[sets]})
+    if (problem->HasParameterBlock(none)) problem->SetParameterBlockConstant(none);
   if (!p.fit_floor) problem->SetParameterBlockConstant(&f.x[3]);
 
   ceres::Solver::Options so;
@@ -712,7 +788,7 @@ std::vector<ScanPoint> Starts(std::span<const Sample> samples,
 
 // The model's value of every sample at a solution (`delta`: the sample stage's offsets).
 std::vector<double> Predictions(const Problem& p, const FitOptions& o, const FitSummary& out,
-                                std::span<const double> delta) {
+                                std::span<const double> delta, std::span<const double> dark_z) {
   std::vector<double> predicted(p.samples.size());
   for (std::size_t i = 0; i < p.samples.size(); ++i) {
     const SampleModel& sm = p.models[i];
@@ -723,7 +799,8 @@ std::vector<double> Predictions(const Problem& p, const FitOptions& o, const Fit
                                         out.scale.value, out.eta.value);
     else
       m = out.scale.value * FixedEtaValue(o.model, sm, out.width.value);
-    predicted[i] = m + out.floor.value + p.SlopeOf(i) * delta[p.DeltaOf(i)];
+    predicted[i] =
+        m + out.floor.value + p.SlopeOf(i) * delta[p.DeltaOf(i)] + p.DarkOf(i) * dark_z[p.SetOf(i)];
   }
   return predicted;
 }
@@ -739,7 +816,7 @@ void SetInformation(FitSummary& out) {
 
 // Residuals, chi2 (with the sample stage's priors) and the information criteria at the solution.
 void FillStatistics(const Problem& p, const FitOptions& o, const LocalFit& f, FitSummary& out) {
-  std::vector<double> predicted = Predictions(p, o, out, f.delta);
+  std::vector<double> predicted = Predictions(p, o, out, f.delta, f.dark_z);
   out.residuals.clear();
   out.residuals.reserve(p.samples.size());
   out.chi2 = 0;
@@ -749,10 +826,13 @@ void FillStatistics(const Problem& p, const FitOptions& o, const LocalFit& f, Fi
     out.chi2 += r * r;
   }
   for (int g = 0; g < p.Groups(); ++g) out.chi2 += std::pow(f.delta[g] / p.stage->prior_deg, 2);
+  for (int d = 0; d < p.Sets(); ++d) out.chi2 += f.dark_z[d] * f.dark_z[d];
   SetInformation(out);
-  // The lobe is judged on the surface's model, without the floor or the stage's offsets.
+  // The lobe is judged on the surface's model, without the floor, the stage's offsets or the
+  // dark sets'.
   for (std::size_t i = 0; i < p.samples.size(); ++i)
-    predicted[i] -= out.floor.value + p.SlopeOf(i) * f.delta[p.DeltaOf(i)];
+    predicted[i] -=
+        out.floor.value + p.SlopeOf(i) * f.delta[p.DeltaOf(i)] + p.DarkOf(i) * f.dark_z[p.SetOf(i)];
   out.points_in_lobe = PointsInLobe(p.samples, predicted);
 }
 
@@ -765,6 +845,7 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
   // The stage's offsets last: the parameters' covariance is then the marginal one, over them.
   const int first_delta = static_cast<int>(blocks.size());
   for (int g = 0; g < p.Groups(); ++g) blocks.push_back(&winner.delta[g]);
+  for (int d = 0; d < p.Sets(); ++d) blocks.push_back(&winner.dark_z[d]);  // marginal over them too
   Eigen::MatrixXd c;
   ceres::CRSMatrix j;
   bool cov_ok = Covariance(*winner.problem, blocks, &c, &j);
@@ -801,7 +882,7 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
     }
     // The statistical part: the sandwich C J^T D J C, with D_i = (sigma_stat_i / sigma_i)^2 the
     // share of each sample's variance that is statistical (LocalFit::row_sample: a row's sample;
-    // a prior's row is none of it).
+    // a stage offset's prior is none of it, a dark set's all of it: the dark frames' noise).
     bool have_stat = j.num_rows == static_cast<int>(winner.row_sample.size());
     for (const Sample& s : p.samples) have_stat = have_stat && s.sigma_stat > 0;
     if (have_stat) {
@@ -809,8 +890,9 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
       Eigen::MatrixXd m = Eigen::MatrixXd::Zero(n, n);
       for (int r = 0; r < j.num_rows; ++r) {
         const int i = winner.row_sample[r];
-        if (i < 0) continue;
-        const double d = std::pow(std::min(1.0, p.samples[i].sigma_stat / p.samples[i].sigma), 2);
+        if (i == -1) continue;
+        const double d =
+            i < 0 ? 1.0 : std::pow(std::min(1.0, p.samples[i].sigma_stat / p.samples[i].sigma), 2);
         for (int a = j.rows[r]; a < j.rows[r + 1]; ++a)
           for (int b = j.rows[r]; b < j.rows[r + 1]; ++b)
             m(j.cols[a], j.cols[b]) += d * j.values[a] * j.values[b];
@@ -888,8 +970,24 @@ double Median(std::vector<double> v) {
 }
 
 // One fit with the floor on or off (o.floor is kOff or kFit).
-Result<FitSummary> FitOnce(std::span<const Sample> samples, const SolveOptions& o) {
+Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o) {
   const auto t0 = std::chrono::steady_clock::now();
+  // The dark sets' shared parts come out of each sample's sigma (and its statistical part) into
+  // one nuisance per set (DarkUse): the samples' own sigmas below are the independent parts.
+  const DarkSets dark = DarkSetsOf(input);
+  std::vector<Sample> independent;
+  if (dark.count > 0) {
+    independent.assign(input.begin(), input.end());
+    for (std::size_t i = 0; i < independent.size(); ++i) {
+      Sample& s = independent[i];
+      if (dark.set[i] < 0) continue;
+      const double d2 = s.sigma_dark * s.sigma_dark;
+      s.sigma = std::sqrt(s.sigma * s.sigma - d2);
+      s.sigma_stat = std::sqrt(std::max(s.sigma_stat * s.sigma_stat - d2, 0.0));
+    }
+  }
+  const std::span<const Sample> samples =
+      dark.count > 0 ? std::span<const Sample>(independent) : input;
   // Geometry at the starting (or fixed) eta, computed once for every sample: the scan's.
   std::vector<FixedGeometry> geometry;
   geometry.reserve(samples.size());
@@ -916,7 +1014,8 @@ Result<FitSummary> FitOnce(std::span<const Sample> samples, const SolveOptions& 
   };
   std::vector<double> sigmas;
   for (const Sample& s : samples) sigmas.push_back(s.sigma);
-  Problem p{samples, build(*modes, o.eta), o.floor == Floor::kFit, Median(sigmas), o.stage.get()};
+  Problem p{samples,        build(*modes, o.eta), o.floor == Floor::kFit,
+            Median(sigmas), o.stage.get(),        &dark};
 
   // Local fits: the caller's start and the half-width estimate always run, then the best scan
   // minima, up to max_local_fits (plus those first two).
@@ -975,6 +1074,10 @@ Result<FitSummary> FitOnce(std::span<const Sample> samples, const SolveOptions& 
     out.response.apertures += (*modes)[i] == 2;
     out.response.rays += static_cast<long>(p.models[i].g.size());
   }
+  out.dark.sets = dark.count;
+  out.dark.samples = dark.samples;
+  for (int d = 0; d < dark.count; ++d)
+    out.dark.largest_z = std::max(out.dark.largest_z, std::abs(best.dark_z[d]));
   FillStatistics(p, o, *winner, out);
   const bool cov_ok = FillUncertainties(*winner, p, o, out);
   Judge(cov_ok, out);

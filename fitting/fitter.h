@@ -8,6 +8,8 @@
 //     mean (eq. R1 of docs/measurement.md) where that changes the prediction by more than
 //     response_tolerance sigma, refined until finer rays change it by less; the others, and
 //     samples without one, by the point model. FitSummary::response says how many and the cost.
+//   * Samples that share a dark set's error (Sample::dark_set, sigma_dark) take one nuisance per
+//     set where it matters, the rest of each sigma independent (DarkUse).
 //   * Floor::kFit adds a constant b to the model (stray light); kAuto keeps it only when BIC
 //     prefers it. Each parameter's sigma is split into the samples' statistical part and the rest.
 //   * Parameters stay physical without bounds the solver can hit: the solver sees log(width),
@@ -161,6 +163,22 @@ struct GeometryUse {
   std::string note;       // what was used and what was left out, in words
 };
 
+// How the dark sets' shared errors entered a fit (Sample::dark_set, sigma_dark). The samples of a
+// set were subtracted with the same dark frames, so the set's error is one error in all of them:
+// one nuisance z per set, a parameter of the solve with the prior N(0, 1), entering each of its
+// samples as sigma_dark z, and the rest of each sample's sigma, sqrt(sigma^2 - sigma_dark^2),
+// independent (generalised least squares with the sets' correlations; the prior's term is in
+// chi2, so it takes no degree of freedom). A set enters when it has 2 or more samples and its
+// shared part matters: the sum over them of (sigma_dark / sigma)^2 is 0.01 or more (below, the
+// correlation moves no parameter's variance by more than about 1 %). Its share of the parameters'
+// sigmas is statistical (dark frames' shot and read noise). Residuals are then over the
+// independent part of sigma, with the sets' offsets in the model.
+struct DarkUse {
+  int sets = 0;          // sets modelled
+  int samples = 0;       // samples in them
+  double largest_z = 0;  // the largest |z| found, in units of its prior
+};
+
 // How the instrument response entered a fit (FitOptions::use_response).
 struct ResponseUse {
   int samples_with_response = 0;  // samples that carry one
@@ -183,6 +201,7 @@ struct FitSummary {
   std::string floor_choice;  // with Floor::kAuto: why it was kept or left out
   ResponseUse response;
   GeometryUse geometry;
+  DarkUse dark;
   double seconds = 0;  // wall time of the fit
   double alpha_equivalent = 0;
 

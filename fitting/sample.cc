@@ -77,6 +77,8 @@ Status ValidateSamples(std::span<const Sample> samples, int n_params, const std:
     if (!std::isfinite(s.value)) return bad("value is not a finite number");
     if (!std::isfinite(s.sigma)) return bad("sigma is not a finite number");
     if (!(s.sigma > 0)) return bad("sigma must be > 0 (it weights the sample)");
+    if (!(s.sigma_dark >= 0 && s.sigma_dark < s.sigma))
+      return bad("sigma_dark (the dark set's shared part of sigma) must lie in [0, sigma)");
     // Dark-subtracted values scatter below zero where the signal is below the noise; that is a
     // measurement of ~0 and dropping or clipping it would bias the fit. More than 5 sigma below
     // zero is not noise: the dark frame does not match the exposure.

@@ -29,7 +29,13 @@ struct Sample {
   // The bench measured this point's stray-light background (the beam blocked) and subtracted
   // it, with its uncertainty in sigma: no floor stands in for it (Floor::kAuto fits none).
   bool background_subtracted = false;
-  int line = 0;  // where it came from (file line), 0 when not from a file
+  // The error this sample shares with the others of its dark set (the dark frames subtracted
+  // from each of them; acquisition: dark_set, sigma_dark): a part of sigma, in value's units, the
+  // same error in counts for all of the set. The fitter takes each set's as one nuisance
+  // (FitSummary::dark). -1 and 0: none known, sigma is independent from sample to sample.
+  int dark_set = -1;
+  double sigma_dark = 0;  // >= 0, < sigma
+  int line = 0;           // where it came from (file line), 0 when not from a file
   // The instrument response (response.h), when the sample came from a run of a bench whose
   // geometry is known; absent for synthetic or bare CSV samples (the point model then).
   std::optional<PointResponse> response;

@@ -113,6 +113,18 @@ Result<std::vector<Sample>> ParseSamplesCsv(std::string_view text, const std::st
                           : SampleFromBenchAngles(tl, pl, tv, pv, value, sigma);
     s.line = line_no;
     if (Status st = number("sigma_stat", 0, &s.sigma_stat); !st) return st.error();
+    // An export's dark set and its shared part of sigma: empty where the point had none.
+    if (auto it = column.find("dark_set"); it != column.end() && !fields[it->second].empty()) {
+      const std::string_view f = fields[it->second];
+      const auto r = std::from_chars(f.data(), f.data() + f.size(), s.dark_set);
+      if (r.ec != std::errc() || r.ptr != f.data() + f.size() || s.dark_set < 0)
+        return InvalidArgument(where() + "column 'dark_set': '" + std::string(f) +
+                               "' is not a set's id (an integer >= 0)");
+      if (Status st = number("sigma_dark", 0, &s.sigma_dark); !st) return st.error();
+      if (!(s.sigma_dark >= 0 && s.sigma_dark < sigma))
+        return InvalidArgument(where() + "column 'sigma_dark' is " + std::to_string(s.sigma_dark) +
+                               ": the dark set's part of sigma must lie in [0, sigma)");
+    }
     // An export's background column: set where the point's background was measured (and is
     // already subtracted from value), empty where none was.
     if (auto it = column.find("background"); it != column.end() && !fields[it->second].empty()) {

@@ -58,6 +58,8 @@ inline nlohmann::json ToJson(const FitSummary& f) {
             {"apertures", f.response.apertures},
             {"rays", f.response.rays},
             {"rounds", f.response.rounds}}},
+          {"dark",
+           {{"sets", f.dark.sets}, {"samples", f.dark.samples}, {"largest_z", f.dark.largest_z}}},
           {"geometry",
            {{"stated", f.geometry.stated},
             {"angle_max_fraction", f.geometry.angle_max_fraction},

@@ -18,40 +18,22 @@ import math
 import statistics
 import sys
 
-STEP_DEG = 1e-3  # config/sim.toml's 1000 steps per degree
+import truth_log
 
 
 def main():
     if len(sys.argv) < 3:
         sys.exit(__doc__.strip().splitlines()[-1].strip())
-    groups = []  # consecutive frames at one pair of stage angles
-    try:
-        for r in csv.DictReader(open(sys.argv[1])):
-            key = (float(r["sample_deg"]), float(r["arm_deg"]))
-            if not groups or groups[-1][0] != key:
-                groups.append((key, []))
-            if r["shutter_closed"] == "0":
-                groups[-1][1].append((float(r["exposure_s"]), float(r["lamp_relative"])))
-    except (OSError, KeyError, ValueError) as e:
-        sys.exit(f"lamp_check: {sys.argv[1]}: {e}")
+    match = truth_log.Matcher(truth_log.groups(sys.argv[1], "lamp_check"), "lamp_check")
     by_exposure = collections.defaultdict(lambda: [0.0, 0.0, 0.0, 0])
-    g = 0
     for path in sys.argv[2:]:
         try:
             rows = list(csv.DictReader(l for l in open(path) if not l.startswith("#")))
         except OSError as e:
             sys.exit(f"lamp_check: {e}")
         for r in rows:
-            sr, ar = float(r["sample_read_deg"]), float(r["arm_read_deg"])
-            while g < len(groups) and not (abs(groups[g][0][0] - sr) < STEP_DEG / 2 + 1e-9 and
-                                           abs(groups[g][0][1] - ar) < STEP_DEG / 2 + 1e-9):
-                g += 1
-            if g == len(groups):
-                sys.exit(f"lamp_check: {path}: no frame at sample {sr}, arm {ar}: "
-                         "is the truth log the run's?")
+            _, frames = match.frames(r, path)
             n = int(r["frames"])
-            frames = groups[g][1][-n:]
-            g += 1
             value = abs(float(r["value"]))
             if n < 2 or len(frames) < n or value == 0:
                 continue

@@ -16,9 +16,10 @@ stages were truly at (gonio-sim-render, noise-free, at the lamp's nominal output
 Each is taken relative to its run's weighted mean (the scale is fitted anyway). The table gives
 their pulls' rms over every point, per run: then the width error each part implies, the weighted
 least-squares projection of its residuals on the scene's change with alpha (rendered at alpha and
-alpha (1 + 1e-3)) beside a free scale, in units of the fit's own sigma(alpha) from the stored sigmas,
-at the true angles. A part whose per-run width errors spread wider than 1 leaves out an error that
-the points of a run share.
+alpha (1 + 1e-3)) beside a free scale and a constant floor (as gonio-fit fits them), in units of the fit's own sigma(alpha) from the stored sigmas,
+at the true angles, beside what that part's own sigmas predict for them (the statistical for the
+camera, the lamp, monitor and background terms for the normalisation). A part whose width errors
+spread wider than its sigmas say leaves out an error that the points of a run share.
 
   bench/coverage/value_check.py RENDER SIM_TOML TRUTH_CSV EXPORT_CSV...
 
@@ -33,25 +34,11 @@ import subprocess
 import sys
 import tempfile
 
-STEP_DEG = 1e-3  # config/sim.toml's 1000 steps per degree
+import truth_log
 
 
 def fail(message):
     sys.exit(f"value_check: {message}")
-
-
-def truth_groups(path):
-    groups = []  # consecutive frames at one pair of true stage angles
-    try:
-        for r in csv.DictReader(open(path)):
-            key = (float(r["sample_deg"]), float(r["arm_deg"]))
-            if not groups or groups[-1][0] != key:
-                groups.append((key, []))
-            if r["shutter_closed"] == "0":
-                groups[-1][1].append((float(r["exposure_s"]), float(r["lamp_relative"])))
-    except (OSError, KeyError, ValueError) as e:
-        fail(f"{path}: {e}")
-    return groups
 
 
 def read_export(path):
@@ -97,46 +84,54 @@ def with_alpha(config, factor):
     return f.name
 
 
-def project(res, sig, grad):
-    """Weighted least squares of res on [1, grad]: the coefficient of grad and its sigma."""
+def solve(m, b):
+    """m x = b by Gauss-Jordan with partial pivoting (m small and well conditioned); and m^-1."""
+    n = len(m)
+    a = [row[:] + [1.0 if i == j else 0.0 for j in range(n)] for i, row in enumerate(m)]
+    for c in range(n):
+        p = max(range(c, n), key=lambda r: abs(a[r][c]))
+        a[c], a[p] = a[p], a[c]
+        pivot = a[c][c]
+        a[c] = [x / pivot for x in a[c]]
+        for r in range(n):
+            if r != c:
+                f = a[r][c]
+                a[r] = [x - f * y for x, y in zip(a[r], a[c])]
+    inv = [row[n:] for row in a]
+    return [sum(inv[i][j] * b[j] for j in range(n)) for i in range(n)], inv
+
+
+def project(res, sig, columns, err):
+    """Weighted least squares (weights 1 / sig^2) of res on the columns: the second column's
+    coefficient, its sigma, and its sigma were the residuals' errors `err` instead (independent)."""
+    k = len(columns)
     w = [1 / s ** 2 for s in sig]
-    s0 = sum(w)
-    s1 = sum(wi * g for wi, g in zip(w, grad))
-    s2 = sum(wi * g * g for wi, g in zip(w, grad))
-    r0 = sum(wi * r for wi, r in zip(w, res))
-    r1 = sum(wi * r * g for wi, r, g in zip(w, res, grad))
-    det = s0 * s2 - s1 * s1
-    if det <= 0:
-        return float("nan"), float("nan")
-    return (s0 * r1 - s1 * r0) / det, math.sqrt(s0 / det)
+    ata = [[sum(wi * ca * cb for wi, ca, cb in zip(w, columns[a], columns[b])) for b in range(k)]
+           for a in range(k)]
+    atb = [sum(wi * ca * r for wi, ca, r in zip(w, columns[a], res)) for a in range(k)]
+    x, inv = solve(ata, atb)
+    # The sandwich: row 1 of inv A'W, applied to errors of variance err^2.
+    row = [sum(inv[1][a] * columns[a][i] for a in range(k)) * w[i] for i in range(len(res))]
+    return x[1], math.sqrt(inv[1][1]), math.sqrt(sum((r * e) ** 2 for r, e in zip(row, err)))
 
 
 def main():
     if len(sys.argv) < 5:
         sys.exit(__doc__.strip().splitlines()[-3].strip())
     tool, config, truth = sys.argv[1:4]
-    groups = truth_groups(truth)
+    match = truth_log.Matcher(truth_log.groups(truth, "value_check"), "value_check")
     bumped = with_alpha(config, 1.001)
-    g = 0
     print("| run | points | camera pull rms | norm pull rms | value pull rms "
           "| width error / σ(α): camera | norm | value |")
     print("|---|---|---|---|---|---|---|---|")
     totals = {"camera": [], "norm": [], "value": []}
+    expected = {"camera": [], "norm": [], "value": []}  # what each part's own sigmas predict
     for path in sys.argv[4:]:
         rect, rows = read_export(path)
         points = []
         for r in rows:
-            sr, ar = float(r["sample_read_deg"]), float(r["arm_read_deg"])
-            while g < len(groups) and not (abs(groups[g][0][0] - sr) < STEP_DEG / 2 + 1e-9 and
-                                           abs(groups[g][0][1] - ar) < STEP_DEG / 2 + 1e-9):
-                g += 1
-            if g == len(groups):
-                fail(f"{path}: no frame at sample {sr}, arm {ar}: is the truth log the run's?")
-            n = int(r["frames"])
-            frames = groups[g][1][-n:]
-            key = groups[g][0]
-            g += 1
-            if len(frames) < n or not r["monitor_w"]:
+            key, frames = match.frames(r, path)
+            if len(frames) < int(r["frames"]) or not r["monitor_w"]:
                 continue
             lamp = sum(x[1] for x in frames) / len(frames)
             points.append((key, float(r["value"]), float(r["monitor_w"]), lamp,
@@ -162,20 +157,28 @@ def main():
             sig = [sg for _, sg in x]
             pulls = [e / sg for e, sg in zip(res, sig) if sg > 0]
             cells.append(f"{math.sqrt(sum(p * p for p in pulls) / len(pulls)):.2f}")
-            use = [(e, sg, gr) for e, sg, gr in zip(res, sig, grad) if sg > 0]
-            # The width error: the value's sigma is the fit's weights for every part.
+            # The width error: the value's sigma is the fit's weights for every part. Beside the
+            # scale and alpha, the fit's constant floor (in value units, so relative to each point
+            # peak / scene), which takes an offset the tails share.
             vsig = [s for _, s in parts["value"]]
-            use = [(e, vs, gr) for e, vs, gr, sg in zip(res, vsig, grad, sig) if vs > 0]
-            dln, sdln = project([u[0] for u in use], [u[1] for u in use], [u[2] for u in use])
+            peak = max(s for _, s, _ in keep)
+            use = [(e, vs, gr, peak / s, sg)
+                   for e, vs, gr, (_, s, _), sg in zip(res, vsig, grad, keep, sig) if vs > 0]
+            dln, sdln, expect = project([u[0] for u in use], [u[1] for u in use],
+                                        [[1.0] * len(use), [u[2] for u in use],
+                                         [u[3] for u in use]], [u[4] for u in use])
             widths.append(dln / sdln)
             totals[name].append(dln / sdln)
+            expected[name].append((expect / sdln) ** 2)
         print(f"| {os.path.basename(path)} | {len(keep)} | " + " | ".join(cells) + " | " +
               " | ".join(f"{w:+.2f}" for w in widths) + " |")
     os.unlink(bumped)
     print()
     for name, w in totals.items():
         rms = math.sqrt(sum(x * x for x in w) / len(w))
-        print(f"{name}: width errors' rms over {len(w)} runs {rms:.2f}, mean {sum(w) / len(w):+.2f}")
+        said = math.sqrt(sum(expected[name]) / len(w))
+        print(f"{name}: width errors' rms over {len(w)} runs {rms:.2f} (its sigmas say {said:.2f}), "
+              f"mean {sum(w) / len(w):+.2f}")
 
 
 if __name__ == "__main__":

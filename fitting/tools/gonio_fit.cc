@@ -87,6 +87,10 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
                 << " with the apertures too), " << f.response.rays
                 << " model evaluations per pass, " << f.response.rounds << " solve(s); "
                 << std::setprecision(3) << f.seconds << " s\n";
+    if (f.dark.sets > 0)
+      std::cout << "    dark sets: " << f.dark.sets << " shared error(s) in the fit, over "
+                << f.dark.samples << " samples (the largest found: " << std::setprecision(2)
+                << f.dark.largest_z << " of its sigma)\n";
     if (f.floor_fitted)
       std::cout << "    floor: " << PlusMinus(f.floor, 6) << " (" << f.floor_choice << ")\n";
     else if (!f.floor_choice.empty())

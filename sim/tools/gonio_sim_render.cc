@@ -1,6 +1,7 @@
 // gonio-sim-render: what the simulated camera sees in a rectangle, noise-free, at given stage
-// angles: the scene of a gonio-sim config rendered as the camera renders it (the whole sensor, at
-// the lamp's nominal output), averaged over the rectangle. A diagnostic for coverage runs
+// angles: the scene of a gonio-sim config rendered as the camera renders it (at the lamp's nominal
+// output; the sensor pixels around the rectangle, within 1e-5 of a whole frame's), averaged over
+// the rectangle. A diagnostic for coverage runs
 // (bench/coverage/value_check.py): a point's stored value against what the scene put into its
 // rectangle at the angles the truth log says the stages were at.
 //
@@ -56,8 +57,8 @@ int main(int argc, char** argv) {
   around.offset_y = std::max(0, (y / 8 - 1) * 8);
   around.width = std::min(region.width, ((x + w + 7) / 8 + 1) * 8) - around.offset_x;
   around.height = std::min(region.height, ((y + h + 7) / 8 + 1) * 8) - around.offset_y;
-  const Scene scene(cfg.bench,
-                    MicrofacetTruth(cfg.sample_model, cfg.sample_alpha, cfg.sample_eta), cfg.scene);
+  const Scene scene(cfg.bench, MicrofacetTruth(cfg.sample_model, cfg.sample_alpha, cfg.sample_eta),
+                    cfg.scene);
   std::cout << "sample_deg,arm_deg,beam_blocked,rate_e_per_s\n" << std::setprecision(12);
   std::string line;
   for (int n = 1; std::getline(std::cin, line); ++n) {
@@ -74,7 +75,8 @@ int main(int argc, char** argv) {
     }
     if (in >> comma >> blocked) a.beam_blocked = blocked != 0;
     const cv::Mat1d rates = scene.Render(a, around);
-    const double mean = cv::mean(rates(cv::Rect(x - around.offset_x, y - around.offset_y, w, h)))[0];
+    const double mean =
+        cv::mean(rates(cv::Rect(x - around.offset_x, y - around.offset_y, w, h)))[0];
     std::cout << a.sample_deg << ',' << a.arm_deg << ',' << (a.beam_blocked ? 1 : 0) << ',' << mean
               << '\n';
   }

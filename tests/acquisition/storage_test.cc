@@ -329,7 +329,9 @@ TEST_F(StorageTest, TheDarkSetsShareOfSigmaIsStoredAndExportedWithTheSet) {
     m.sigma_stat = 0.1, m.sigma_dark = 0.046875;
     ASSERT_TRUE((*s)->StoreMeasurement(run, m).ok());
   }
-  ASSERT_TRUE((*s)->StoreMeasurement(run, M(2, 102)).ok());  // no dark set
+  Measurement without = M(2, 102);  // no dark set
+  without.monitor_w = 0.0017274321;
+  ASSERT_TRUE((*s)->StoreMeasurement(run, without).ok());
   auto rows = (*s)->Measurements(run);
   ASSERT_TRUE(rows.ok());
   ASSERT_EQ(rows->size(), 3u);
@@ -344,6 +346,7 @@ TEST_F(StorageTest, TheDarkSetsShareOfSigmaIsStoredAndExportedWithTheSet) {
   for (; at != std::string::npos; at = text.find(shared, at + 1)) ++count;
   EXPECT_EQ(count, 2u) << text;
   EXPECT_NE(text.find(",,0\n"), std::string::npos) << "the point without a set: " << text;
+  EXPECT_NE(text.find(",0.0017274321,"), std::string::npos) << "the monitor's reading whole";
   auto samples = fitting::ParseSamplesCsv(text, "export");
   ASSERT_TRUE(samples.ok()) << samples.error().message;
   EXPECT_EQ(samples->size(), 3u);

@@ -49,6 +49,26 @@ TEST(SamplesCsv, MalformedFilesNameFileLineAndColumn) {
   EXPECT_EQ(ErrorOf("theta_l_deg,theta_v_deg,value,sigma\n"), "s.csv: no samples after the header");
 }
 
+// An export's dark set and its shared part of sigma (acquisition: dark_set, sigma_dark): read
+// where the set is given, none where it is empty, and a part that is not below sigma is refused.
+TEST(SamplesCsv, ReadsTheDarkSetAndRefusesASharedPartNotBelowSigma) {
+  const std::string head = "theta_l_deg,theta_v_deg,value,sigma,dark_set,sigma_dark\n";
+  auto r = ParseSamplesCsv(head + "0,1,2,0.5,7,0.25\n0,2,2,0.5,,0\n", "s.csv");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  ASSERT_EQ(r->size(), 2u);
+  EXPECT_EQ((*r)[0].dark_set, 7);
+  EXPECT_EQ((*r)[0].sigma_dark, 0.25);
+  EXPECT_EQ((*r)[1].dark_set, -1);
+  EXPECT_EQ((*r)[1].sigma_dark, 0);
+  EXPECT_EQ(ErrorOf(head + "0,1,2,0.5,7,0.5\n"),
+            "s.csv:2: column 'sigma_dark' is 0.500000: the dark set's part of sigma must lie in "
+            "[0, sigma)");
+  EXPECT_EQ(ErrorOf(head + "0,1,2,0.5,-3,0.1\n"),
+            "s.csv:2: column 'dark_set': '-3' is not a set's id (an integer >= 0)");
+  EXPECT_EQ(ErrorOf(head + "0,1,2,0.5,x,0.1\n"),
+            "s.csv:2: column 'dark_set': 'x' is not a set's id (an integer >= 0)");
+}
+
 TEST(SamplesCsv, AReflectionRowViewsFromTheAirSideAndRoundTrips) {
   // theta_v from +n, positive away from the light: 30 deg at incidence 30 is the mirror direction.
   auto r = ParseSamplesCsv(

@@ -39,6 +39,11 @@ Result<std::vector<fitting::Sample>> RunSamples(acquisition::Storage& db, std::i
     s.line = r.point.index;
     s.sigma_stat = r.m.sigma_stat;
     s.background_subtracted = r.m.background.has_value();
+    // The dark set's shared part, as the export gives it (the fitter takes one error per set).
+    if (r.m.dark_id > 0 && r.m.sigma_dark > 0 && r.m.sigma_dark < r.m.sigma) {
+      s.dark_set = static_cast<int>(r.m.dark_id);
+      s.sigma_dark = r.m.sigma_dark;
+    }
     if (setup)
       s.response = fitting::PointResponse{
           setup, {r.m.sample_read_deg, r.m.arm_read_deg, r.m.azimuth_read_deg}};

@@ -7,7 +7,8 @@
 //
 //   gonio-sim-render --config sim.toml --rect X,Y,W,H < angles.csv > rates.csv
 //
-// Input: one line per geometry, "sample_deg,arm_deg[,beam_blocked]" (a header line is skipped).
+// Input: one line per geometry, "sample_deg,arm_deg[,beam_blocked]" (a first line that is not
+// numbers is a header; any other is an error naming its line).
 // Output: "sample_deg,arm_deg,beam_blocked,rate_e_per_s": the rectangle's mean photo-electron rate
 // per sensor pixel.
 #include <CLI/CLI.hpp>
@@ -62,9 +63,9 @@ int main(int argc, char** argv) {
   std::cout << "sample_deg,arm_deg,beam_blocked,rate_e_per_s\n" << std::setprecision(12);
   std::string line;
   for (int n = 1; std::getline(std::cin, line); ++n) {
-    if (line.empty() || !(std::isdigit(static_cast<unsigned char>(line[0])) || line[0] == '-' ||
-                          line[0] == '+' || line[0] == '.'))
-      continue;  // a header or a blank line
+    const bool numeric = !line.empty() && (std::isdigit(static_cast<unsigned char>(line[0])) ||
+                                           line[0] == '-' || line[0] == '+' || line[0] == '.');
+    if (line.empty() || (n == 1 && !numeric)) continue;  // a blank line, or the first a header
     std::istringstream in(line);
     StageAngles a;
     char comma = 0;

@@ -162,8 +162,9 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
   // The exposure the camera applied, not the one asked for: cameras set it in steps (the simulated
   // one in whole microseconds: the ladder's 3.162 ms came out 0.28 us short, 9e-5 of the peak's
   // value; a real camera's step may be a sensor line), and the value is counts per second of it.
-  // Keys (darks, lamp pools, the planner's darks) take ExposureKey of either. A camera that cannot
-  // say keeps the request.
+  // The engine's keys (darks, lamp pools) stay the step asked for (ExposureKey); the planner
+  // compares stored exposures within 0.1 % (SameExposure). A camera that cannot say keeps the
+  // request.
   if (auto applied = camera_.Exposure(); applied.ok() && *applied > 0) t = *applied;
   m.exposure_s = t;
 
@@ -277,7 +278,8 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   // frames' noise is all of stat.
   // The dark set's own error is in every point subtracted with it: sigma_dark says how much of
   // sigma_stat it is, so that a fit can take it as one error per set (issue #16's antiglare runs
-  // at ambient: the 20 s set's error, shared by 13 points, moved the width by a sigma).
+  // at ambient: the 20 s set's offset, shared by 13 points, scattered 2.1 times its own error
+  // from run to run).
   const double var_dark =
       e.background ? 0.0 : dark->pixel_var / (m.rect_pixels * static_cast<double>(dark->frames));
   const double var_mean = m.pixel_var / (m.rect_pixels * static_cast<double>(m.frames)) + var_dark;

@@ -187,14 +187,20 @@ double NoiseModel::Take(double value) {
   return cost;
 }
 
-std::map<double, double>::iterator NoiseModel::DarkAt(double t) {
-  return std::find_if(dark_taken.begin(), dark_taken.end(),
+namespace {
+template <typename Map>
+auto FindExposure(Map& darks, double t) {
+  return std::find_if(darks.begin(), darks.end(),
                       [&](const auto& d) { return SameExposure(d.first, t); });
+}
+}  // namespace
+
+std::map<double, double>::iterator NoiseModel::DarkAt(double t) {
+  return FindExposure(dark_taken, t);
 }
 
 std::map<double, double>::const_iterator NoiseModel::DarkAt(double t) const {
-  return std::find_if(dark_taken.begin(), dark_taken.end(),
-                      [&](const auto& d) { return SameExposure(d.first, t); });
+  return FindExposure(dark_taken, t);
 }
 
 double NoiseModel::Cost(double value) const {

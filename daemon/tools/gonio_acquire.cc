@@ -3,6 +3,7 @@
 //
 //   gonio-acquire -c config/instrument.toml --db runs.sqlite run plan.toml [--dry-run]
 //   gonio-acquire ... resume [RUN]        # an interrupted run (default: the latest one)
+//   gonio-acquire ... --cool -10 run plan.toml   # the CCD cooled and held first
 //   gonio-acquire --db runs.sqlite export RUN --out run.csv    # the fitter's CSV
 //   gonio-acquire --db runs.sqlite status RUN
 //
@@ -10,6 +11,10 @@
 // A device fault that the drivers' own retries did not clear (a device restarted, a cable
 // pulled) pauses the run, which is tried again every --retry-s until it measures again, as goniod
 // does, for at most --give-up-s (0: stop at the first fault).
+// --cool C cools the CCD to C and waits until it holds there (--cool-hold seconds within 0.5 C)
+// before the first point, as goniod's [job.cooler] does: at ambient a CCD's dark current is tens
+// of times larger, and darks taken while it cools are stale by the next point. A camera without
+// a cooler is refused rather than measured warm.
 // Exit codes: 0 done; 1 a device or storage error not cleared in time (the run is left paused);
 // 2 bad input; 3 paused by a signal.
 #include <CLI/CLI.hpp>
@@ -19,6 +24,7 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <sstream>
 #include <thread>
 
@@ -103,6 +109,21 @@ struct Retry {
   double every_s = 2;
   double give_up_s = 600;
 };
+
+// Cools the CCD and waits for it to hold (--cool); a signal ends the wait (kAborted, exit 1: the
+// run stays as it was, pending or paused).
+Status Cool(devices::Camera& camera, const devices::TemperatureWait& w) {
+  if (!camera.Capabilities().cooler)
+    return Error{ErrorCode::kFailedPrecondition,
+                 "--cool: this camera has no cooler (measure without --cool, at its own "
+                 "temperature)"};
+  std::cout << "cooling the CCD to " << w.setpoint_c << " C (held " << w.hold_s << " s within "
+            << w.tolerance_c << " C, at most " << Duration(w.timeout_s) << ")" << std::endl;
+  if (Status s = camera.CoolAndWait(w); !s.ok()) return s;
+  if (auto t = camera.TemperatureC(); t.ok())
+    std::cout << "the CCD holds " << *t << " C" << std::endl;
+  return OkStatus();
+}
 
 double SteadyS() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -199,6 +220,18 @@ int main(int argc, char** argv) {
                  "stop (exit 1, the run paused) when a device fault has not cleared in this "
                  "long; 0 stops at the first")
       ->check(CLI::Range(0.0, 7.0 * 24 * 3600));
+  std::optional<double> cool_c;
+  devices::TemperatureWait cool;
+  cool.poll_s = 0.1;
+  cool.cancel = &g_stop;
+  app.add_option("--cool", cool_c,
+                 "run and resume: cool the CCD to this (deg C) and wait until it holds there "
+                 "before measuring")
+      ->check(CLI::Range(-100.0, 30.0));
+  app.add_option("--cool-hold", cool.hold_s, "seconds within 0.5 C that count as holding")
+      ->check(CLI::Range(0.0, 3600.0));
+  app.add_option("--cool-timeout", cool.timeout_s, "give up cooling after this long (seconds)")
+      ->check(CLI::Range(1.0, 24.0 * 3600));
   CLI::App* status_cmd = app.add_subcommand("status", "a run's state");
   status_cmd->add_option("run", run_id)->required();
   try {
@@ -265,6 +298,14 @@ int main(int argc, char** argv) {
     estimate = *e;
   }
   if (dry_run) return 0;
+  // Cooled once the plan is known good and before a run is created: a camera that cannot cool,
+  // or a cooling that times out or is interrupted, leaves nothing behind.
+  std::optional<double> held_c;
+  if (cool_c) {
+    cool.setpoint_c = *cool_c;
+    if (Status s = Cool(*in.camera, cool); !s.ok()) return Fail(s.error());
+    held_c = *cool_c;
+  }
   if (*run_cmd) {
     std::ifstream file(config_path);
     std::stringstream text;
@@ -281,6 +322,11 @@ int main(int argc, char** argv) {
     }
   } else {
     std::cout << "resuming run " << run_id << std::endl;
+  }
+  if (held_c) {
+    std::ostringstream held;
+    held << "sensor held at " << *held_c << " C";
+    (void)store.AddEvent(run_id, "cooled", held.str());
   }
   return Measure(store, in, *cfg, run_id, *plan, retry);
 }

@@ -45,9 +45,23 @@ start() {
 }
 q() { sqlite3 "$1" "$2"; }
 
-# The reference: one uninterrupted run.
-acq --db "$work/ref.sqlite" run "$work/plan.toml" > "$work/ref.log"
+# The reference: one uninterrupted run, with the CCD cooled first (--cool) as a lab measures.
+acq --db "$work/ref.sqlite" --cool -10 --cool-hold 1 run "$work/plan.toml" > "$work/ref.log"
 total=$(q "$work/ref.sqlite" "select count(*) from plan_points")
+[[ $(q "$work/ref.sqlite" "select count(*) from measurements where abs(temperature_c + 10) > 0.5") == 0 ]] ||
+  { echo "--cool -10: points measured away from -10 C"; cat "$work/ref.log"; exit 1; }
+[[ $(q "$work/ref.sqlite" "select detail from run_events where kind = 'cooled'") == "sensor held at -10 C" ]] ||
+  { echo "--cool: the run does not say it was cooled"; exit 1; }
+# A cooling that cannot hold in time fails (exit 1), naming the temperature, and creates no run.
+set +e
+acq --db "$work/cool.sqlite" --cool -10 --cool-hold 30 --cool-timeout 1 run "$work/plan.toml" \
+  > "$work/cool.log" 2>&1
+rc=$?
+set -e
+[[ $rc == 1 ]] || { echo "--cool timing out gave exit $rc, expected 1"; cat "$work/cool.log"; exit 1; }
+grep -q "not held for 30" "$work/cool.log" || { echo "the timeout was not named:"; cat "$work/cool.log"; exit 1; }
+[[ $(q "$work/cool.sqlite" "select count(*) from runs") == 0 ]] ||
+  { echo "--cool timing out left a run behind"; exit 1; }
 
 # The victim: killed at random moments, resumed each time. A resume first waits out the dead
 # process's hold on the camera (the GigE Vision heartbeat timeout it set, 10 s), then measures.

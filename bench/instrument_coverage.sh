@@ -14,7 +14,7 @@
 #              specimens alike (the sphere centre then lies off the rough face unless 6)
 #   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later), and
 #              gonio-sim's truth.csv (what each frame saw: bench/coverage/truth_angles.py,
-#              value_check.py, lamp_check.py)
+#              value_check.py, lamp_check.py, norm_check.py)
 #   COVERAGE_COOL  the CCD's setpoint (C) before the first run, as config/schedule_demo.toml cools
 #              it: default -10; "off" runs at ambient (20 C: dark current 2^(30/6) = 32 times,
 #              whose error each exposure's dark set shares among its points; docs/measurement.md)

@@ -39,11 +39,14 @@ struct ExposureJudgement {
 ExposureJudgement JudgeExposure(const ExposurePolicy& x, double t, double peak_adu,
                                 double range_adu);
 
-// The bench's noise per frame, in stored value units: sigma^2 x frames = shot S/t + read/t^2 +
-// lamp S^2 at value S and exposure t (CalibrateFrameNoise, strategy.h). It describes the bench,
-// not a specimen: a run of one specimen calibrates the forecast of a run of another.
+// The bench's noise per frame, in stored value units: sigma^2 x frames = shot S/t + dark/t +
+// read/t^2 + lamp S^2 at value S and exposure t (CalibrateFrameNoise, strategy.h). It describes
+// the bench, not a specimen: a run of one specimen calibrates the forecast of a run of another.
+// `dark` is the dark current's shot noise (and the stray light's, which every point has alike):
+// without it the long exposures' dark noise was fitted as read noise, which grows as 1/t^2, and
+// the forecast put a 1 s tail's sigma at 4 times the bench's.
 struct FrameNoise {
-  double shot = 0, read = 0, lamp = 0;
+  double shot = 0, read = 0, lamp = 0, dark = 0;
 };
 
 // What the bench delivers, measured on a finished run that has a fit (Storage::LatestThroughput).

@@ -36,13 +36,6 @@ Observation PointBench::Measure(const PlannedPoint& p, const ExposurePolicy& x, 
   }
   last_exposure_s_ = t;
   cost += x.frames * t + (x.frames - 1) * o_.readout_s;
-  auto dark = std::find_if(darks_.begin(), darks_.end(),
-                           [&](const auto& d) { return SameExposure(d.first, t); });
-  if (dark == darks_.end() || spent_s_ + cost - dark->second > o_.dark_max_age_s) {
-    if (dark == darks_.end()) dark = darks_.insert(darks_.end(), {t, 0});
-    cost += o_.dark_frames * (t + o_.readout_s);
-    dark->second = spent_s_ + cost;
-  }
   // Variance of the rectangle's mean in electrons^2, per frame: each pixel's shot, dark and read
   // noise over the pixels, and the lamp's flicker, which all pixels share.
   const double signal_e = rate_e * t, dark_e = o_.dark_e_per_s * t;
@@ -50,11 +43,19 @@ Observation PointBench::Measure(const PlannedPoint& p, const ExposurePolicy& x, 
   const double frame_var =
       (signal_e + dark_e + read2) / o_.pixels + std::pow(o_.flicker_rms * signal_e, 2);
   const double dark_var = (dark_e + read2) / (o_.pixels * o_.dark_frames);
+  std::normal_distribution<double> normal(0, 1);
+  auto dark = std::find_if(darks_.begin(), darks_.end(),
+                           [&](const DarkSet& d) { return SameExposure(d.exposure_s, t); });
+  if (dark == darks_.end() || spent_s_ + cost - dark->taken_s > o_.dark_max_age_s) {
+    if (dark == darks_.end()) dark = darks_.insert(darks_.end(), DarkSet{.exposure_s = t});
+    cost += o_.dark_frames * (t + o_.readout_s);
+    dark->taken_s = spent_s_ + cost;
+    dark->offset_e = std::sqrt(dark_var) * normal(rng_);
+  }
   const double var_e = frame_var / x.frames + dark_var;
   const double scale = 1 / (t * o_.electrons_per_s_per_value);  // electrons -> stored value
-  std::normal_distribution<double> normal(0, 1);
   out.sigma = std::sqrt(var_e) * scale;
-  out.value = signal_e * scale + out.sigma * normal(rng_);
+  out.value = (signal_e + std::sqrt(frame_var / x.frames) * normal(rng_) - dark->offset_e) * scale;
   out.exposure_s = t;
   out.frames = x.frames;
   out.level = signal_e / o_.full_well_e;
@@ -114,7 +115,7 @@ PointBenchOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
   const double e = o.electrons_per_s_per_value;
   o.pixels = 1;
   o.read_noise_e = std::sqrt(noise.read) * e;
-  o.dark_e_per_s = 0;  // in `read`
+  o.dark_e_per_s = noise.dark * e * e;  // dark/t in value^2 is dark_e_per_s t / (e t)^2
   o.flicker_rms = std::sqrt(noise.lamp);
   o.stray_e_per_s = lobe.bench.floor * e;
   o.gain_e_per_adu = lobe.bench.adu_per_value > 0 ? e / lobe.bench.adu_per_value : 1;

@@ -9,7 +9,9 @@
 //   - the engine's ranging (JudgeExposure on the rectangle's mean, from the previous point's
 //     exposure), its frames, and a dark set at each exposure not taken before;
 //   - the noise: shot, read and dark noise per pixel averaged over the rectangle and the frames,
-//     the lamp's flicker common to the rectangle, and the dark's own noise;
+//     the lamp's flicker common to the rectangle, and the dark's own noise, one draw per dark set
+//     shared by every point subtracted with it (the coarse scan's tails share one, and whether
+//     the floor looks worth measuring turns on it);
 //   - moves at the stages' speed (the largest axis move) plus settling, and each frame's readout
 //     but the last (read out during the next move).
 // What it leaves out: images, the rectangle's spread of directions and the apertures (the point
@@ -65,7 +67,12 @@ class PointBench {
   std::mt19937_64 rng_;
   double last_exposure_s_ = 0;
   StageTargets at_;
-  std::vector<std::pair<double, double>> darks_;  // exposure, bench second it was taken at
+  // A dark set: its exposure, the bench second it was taken at, and its error (electrons, in
+  // the rectangle's mean), which every point subtracted with it shares.
+  struct DarkSet {
+    double exposure_s = 0, taken_s = 0, offset_e = 0;
+  };
+  std::vector<DarkSet> darks_;
   double spent_s_ = 0, moved_s_ = 0;
 };
 

@@ -1,6 +1,7 @@
 #include "acquisition/strategy.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -66,9 +67,10 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-// sigma^2 (x frames when per_frame) = shot S/t + read/t^2 + lamp S^2, each >= 0: least squares in
-// relative terms (every row divided by its sigma^2) over each subset of the terms; the best
-// subset whose coefficients are all >= 0 wins (a non-negative least squares on three unknowns).
+// sigma^2 (x frames when per_frame) = shot S/t + dark/t + read/t^2 + lamp S^2, each >= 0: least
+// squares in relative terms (every row divided by its sigma^2) over each subset of the terms; the
+// best subset whose coefficients are all >= 0 wins (a non-negative least squares on four
+// unknowns).
 Result<FrameNoise> FitNoiseTerms(const std::vector<const Observation*>& use, bool per_frame) {
   if (use.size() < 3)
     return Error{ErrorCode::kFailedPrecondition,
@@ -77,33 +79,61 @@ Result<FrameNoise> FitNoiseTerms(const std::vector<const Observation*>& use, boo
   auto variance = [&](const Observation& o) {
     return o.sigma * o.sigma * (per_frame ? std::max(1, o.frames) : 1);
   };
+  constexpr int kTerms = 4;  // shot, read, lamp, dark
+  using Row = std::array<double, kTerms>;
+  auto terms = [](const Observation& o) {
+    const double t = o.exposure_s;
+    return Row{o.value / t, 1 / (t * t), o.value * o.value, 1 / t};
+  };
   FrameNoise best_terms;
   double best = std::numeric_limits<double>::infinity();
-  for (int mask = 1; mask < 8; ++mask) {
-    Mat3 a{};
-    Vec3 b{};
+  for (int mask = 1; mask < (1 << kTerms); ++mask) {
+    std::array<Row, kTerms> a{};
+    Row b{};
     for (const Observation* o : use) {
-      const double v = variance(*o), t = o->exposure_s;
-      const Vec3 row{mask & 1 ? o->value / t / v : 0, mask & 2 ? 1 / (t * t) / v : 0,
-                     mask & 4 ? o->value * o->value / v : 0};
-      for (int i = 0; i < 3; ++i) {
+      const double v = variance(*o);
+      Row row = terms(*o);
+      for (int i = 0; i < kTerms; ++i) row[i] = mask & (1 << i) ? row[i] / v : 0;
+      for (int i = 0; i < kTerms; ++i) {
         b[i] += row[i];
-        for (int j = 0; j < 3; ++j) a[i][j] += row[i] * row[j];
+        for (int j = 0; j < kTerms; ++j) a[i][j] += row[i] * row[j];
       }
     }
-    for (int i = 0; i < 3; ++i)
+    for (int i = 0; i < kTerms; ++i)
       if (!(mask & (1 << i))) a[i][i] = 1;  // unused terms: fixed at 0
-    const auto inv = Inverse(a);
-    if (!inv) continue;
-    const Vec3 c = Times(*inv, b);
-    if (c[0] < 0 || c[1] < 0 || c[2] < 0) continue;
+    // Gaussian elimination with partial pivoting; a singular subset is skipped.
+    Row c = b;
+    bool singular = false;
+    for (int k = 0; k < kTerms && !singular; ++k) {
+      int pivot = k;
+      for (int i = k + 1; i < kTerms; ++i)
+        if (std::abs(a[i][k]) > std::abs(a[pivot][k])) pivot = i;
+      if (!(std::abs(a[pivot][k]) > 1e-300)) {
+        singular = true;
+        break;
+      }
+      std::swap(a[k], a[pivot]);
+      std::swap(c[k], c[pivot]);
+      for (int i = k + 1; i < kTerms; ++i) {
+        const double f = a[i][k] / a[k][k];
+        for (int j = k; j < kTerms; ++j) a[i][j] -= f * a[k][j];
+        c[i] -= f * c[k];
+      }
+    }
+    if (singular) continue;
+    for (int k = kTerms - 1; k >= 0; --k) {
+      for (int j = k + 1; j < kTerms; ++j) c[k] -= a[k][j] * c[j];
+      c[k] /= a[k][k];
+    }
+    if (std::any_of(c.begin(), c.end(), [](double x) { return !(x >= 0); })) continue;
     double r2 = 0;
     for (const Observation* o : use) {
-      const double t = o->exposure_s;
-      const double model = c[0] * o->value / t + c[1] / (t * t) + c[2] * o->value * o->value;
+      const Row row = terms(*o);
+      double model = 0;
+      for (int i = 0; i < kTerms; ++i) model += c[i] * row[i];
       r2 += std::pow(model / variance(*o) - 1, 2);
     }
-    if (r2 < best) best = r2, best_terms = FrameNoise{c[0], c[1], c[2]};
+    if (r2 < best) best = r2, best_terms = FrameNoise{c[0], c[1], c[2], c[3]};
   }
   if (!std::isfinite(best))
     return Error{ErrorCode::kFailedPrecondition, "the noise model found no fit to the sigmas"};
@@ -174,7 +204,7 @@ double NoiseModel::Exposure(double value) const {
 
 double NoiseModel::Sigma(double value) const {
   const double t = Exposure(value), s = std::max(value, 0.0);
-  return std::sqrt(shot * s / t + read / (t * t) + lamp * s * s);
+  return std::sqrt(shot * s / t + dark_current / t + read / (t * t) + lamp * s * s);
 }
 
 double NoiseModel::Take(double value) {
@@ -240,7 +270,7 @@ Result<NoiseModel> CalibrateNoise(const std::vector<Observation>& seen,
     return Error{ErrorCode::kFailedPrecondition,
                  "the noise model needs the points' levels (their fraction of the linear range)"};
   m.fill = Median(fills);
-  m.shot = terms->shot, m.read = terms->read, m.lamp = terms->lamp;
+  m.shot = terms->shot, m.read = terms->read, m.lamp = terms->lamp, m.dark_current = terms->dark;
   return m;
 }
 

@@ -59,15 +59,15 @@ struct Observation {
 //   exposure  t(S) = clamp(fill / S, min_s, max_s) on the ladder, with `fill` the value x exposure
 //             that brings the rectangle to the ranging's target (the median over the points of
 //             S t target / level);
-//   sigma^2   = shot S / t + read / t^2 + lamp S^2, least squares on the points' relative
-//             residuals, each term >= 0 (shot: photons; read: read noise and dark; lamp: what
-//             every pixel shares);
+//   sigma^2   = shot S / t + dark / t + read / t^2 + lamp S^2, least squares on the points'
+//             relative residuals, each term >= 0 (shot: photons; dark: the dark current and the
+//             stray light; read: read noise; lamp: what every pixel shares);
 //   cost      = frames t + overhead_s, the median over the points of what they cost beyond their
 //             averaged frames (the move, ranging tries, readouts), plus a dark set at an exposure
 //             whose set is missing or older than max_age_s (the dark library replayed).
 struct NoiseModel {
   double fill = 0;
-  double shot = 0, read = 0, lamp = 0;
+  double shot = 0, read = 0, lamp = 0, dark_current = 0;
   double overhead_s = 0;
   int dark_frames = 4;
   double dark_max_age_s = 600;

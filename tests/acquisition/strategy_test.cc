@@ -149,9 +149,9 @@ TEST(Strategy, AnAdaptivePlanStartsWithItsCoarseScanAndKeepsTheRestAsCandidates)
   EXPECT_DOUBLE_EQ(coarse.max_s, 1);
 }
 
-// Points of a known model and known noise: sigma^2 = shot S/t + read/t^2 + lamp S^2.
+// Points of a known model and known noise: sigma^2 = shot S/t + dark/t + read/t^2 + lamp S^2.
 std::vector<Observation> KnownNoise(const Provisional& truth, double shot, double read, double lamp,
-                                    const std::vector<PlannedPoint>& grid) {
+                                    const std::vector<PlannedPoint>& grid, double dark = 0) {
   std::vector<Observation> out;
   for (std::size_t k = 0; k < grid.size(); k += 3) {
     Observation o;
@@ -160,8 +160,8 @@ std::vector<Observation> KnownNoise(const Provisional& truth, double shot, doubl
     o.exposure_s = std::clamp(OnLadder(20.0 / o.value), 1e-4, 20.0);
     o.frames = 4;
     o.level = 0.5 * o.value * o.exposure_s / 20.0;  // fill 20 value-seconds at target 0.5
-    o.sigma = std::sqrt(shot * o.value / o.exposure_s + read / (o.exposure_s * o.exposure_s) +
-                        lamp * o.value * o.value);
+    o.sigma = std::sqrt(shot * o.value / o.exposure_s + dark / o.exposure_s +
+                        read / (o.exposure_s * o.exposure_s) + lamp * o.value * o.value);
     o.cost_s = 4 * o.exposure_s + 2.5;
     out.push_back(o);
   }
@@ -184,6 +184,27 @@ TEST(Strategy, TheNoiseModelRecoversKnownCoefficients) {
   auto few = CalibrateNoise({seen[0], seen[1]}, plan->exposure, plan->darks);
   ASSERT_FALSE(few.ok());
   EXPECT_NE(few.error().message.find("needs 3 measured points"), std::string::npos);
+}
+
+// The dark current's shot noise grows as 1/t in value units, read noise as 1/t^2. A model without
+// the dark term fitted the 20 s tails' dark noise as read noise and extrapolated a 1 s tail's
+// sigma to 4 times the bench's (EstimateBeforeTheFirstRun's forecast: 339 s for a run of 200 s).
+TEST(Strategy, TheNoiseModelTellsDarkCurrentFromReadNoise) {
+  auto plan = LoadPlanText(PlanText(""), "s.toml", Context());
+  ASSERT_TRUE(plan.ok());
+  const Provisional truth{0.344, 1, 0.002, 1.51};
+  const double shot = 3e-4, read = 2e-6, lamp = 1e-6, dark = 4e-5;  // dark: 20 times read at 20 s
+  const auto seen = KnownNoise(truth, shot, read, lamp, ExpandGrid(*plan, Context()), dark);
+  auto noise = CalibrateNoise(seen, plan->exposure, plan->darks);
+  ASSERT_TRUE(noise.ok()) << noise.error().message;
+  EXPECT_NEAR(noise->dark_current / dark, 1, 1e-6);
+  EXPECT_NEAR(noise->read / read, 1, 1e-6);
+  EXPECT_NEAR(noise->shot / shot, 1, 1e-6);
+  EXPECT_NEAR(noise->lamp / lamp, 1, 1e-6);
+  auto frame = CalibrateFrameNoise(seen);  // per frame: the 4 frames' variance times 4
+  ASSERT_TRUE(frame.ok()) << frame.error().message;
+  EXPECT_NEAR(frame->dark / (4 * dark), 1, 1e-6);
+  EXPECT_NEAR(frame->read / (4 * read), 1, 1e-6);
 }
 
 // A stored point's exposure is the one its camera applied: the simulated camera truncates to whole

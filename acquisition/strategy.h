@@ -125,8 +125,9 @@ Result<fitting::FitSummary> FitSeen(const std::vector<Observation>& seen, double
 // the given points and returns what they gave, each Observation's point the Choice's (it carries
 // the prediction); `decided` hears each choice before it is measured. Starts from the
 // points already seen (a coarse scan, or a resumed run's points). Stops when the provisional fit's
-// sigma(alpha) / alpha reaches the target, when the next batch would overrun the budget, or when
-// no candidate adds anything; the outcome says which.
+// sigma(alpha) / alpha reaches the target (a poor fit's too: its sigma is inflated by its
+// chi2/dof, and the message says so), when the next batch would overrun the budget, or when no
+// candidate adds anything; the outcome says which.
 struct AdaptiveOutcome {
   enum class Stop { kTarget, kBudget, kExhausted } stop = Stop::kExhausted;
   std::string message;  // "reached sigma(alpha)/alpha 0.012 <= 0.015 after 1234 s", ...

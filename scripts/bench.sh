@@ -24,10 +24,14 @@
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass
 #                                                  -> acquire.md, acquire.json, acquire.png
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|sweep|api|stop|rtu|soak ...]
+#   forecast_spread  the adaptive forecast made before a first run against FORECAST_RUNS (default
+#                    8) real adaptive runs of the ground glass on the simulated instrument, one per
+#                    noise seed                    -> forecast_spread.md
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|forecast|sweep|api|stop|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20)
 #        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20)
 #        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
+#        FORECAST_RUNS=N sets forecast's real adaptive runs (default 8)
 #        (default: all but coverage and soak)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -36,7 +40,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure acquire sweep api stop rtu)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure acquire forecast sweep api stop rtu)
 # Debian's matplotlib/scipy are installed for the system interpreter (docs/design.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -73,6 +77,8 @@ for part in "${parts[@]}"; do
       build-release/bench/acquire_strategies "${ACQUIRE_REPEATS:-100}" out/bench/acquire.json \
         | tee out/bench/acquire.md
       $py bench/plot_acquire.py out/bench/acquire.json out/bench/acquire.png ;;
+    forecast)  # holds the GigE Vision port: no other simulated camera may run meanwhile
+      build-release/bench/forecast_spread "${FORECAST_RUNS:-8}" | tee out/bench/forecast_spread.md ;;
     sweep)  # holds the GigE Vision port: no other simulated camera may run meanwhile
       build-release/bench/acquisition_sweep 5 10 | tee out/bench/acquisition_sweep.md ;;
     api)    # goniod's API under load during a sweep; holds the GigE Vision port too

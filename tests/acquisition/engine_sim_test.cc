@@ -21,6 +21,7 @@
 #include "fitting/fitter.h"
 #include "fitting/samples_csv.h"
 #include "sim/truth/monte_carlo.h"
+#include "tests/support/forecast_case.h"
 #include "tests/support/run_resuming.h"
 #include "tests/support/sim_instrument.h"
 
@@ -755,50 +756,10 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
   auto opened = Storage::Open(db_path);
   ASSERT_TRUE(opened.ok());
   std::unique_ptr<Storage> store = std::move(*opened);
-  const std::vector<Specimen> catalogue = {{"etched-glass-E1", "glass", 6, 1.51, 0.493},
-                                           {"ground-glass-G1", "glass", 6, 1.51, 0.344}};
   const EngineOptions eo{.linear_limit_adu = 65000};
-  // The demo's geometry, coarser: 0 and 45 degrees, the lobe and its tails.
-  auto plan_for = [&](const std::string& specimen, const std::vector<devices::AxisSettings>& axes,
-                      const std::string& strategy =
-                          "") -> std::pair<Plan, std::vector<PlannedPoint>> {
-    const std::string path = db_path + ".plan.toml";
-    std::ofstream(path) << "sample = \"" << specimen << "\"\n[geometry]\nincidence_deg = [0, 45]\n"
-                        << "view_about = \"refracted\"\nview_from_deg = -50\nview_to_deg = 50\n"
-                        << "view_step_deg = 5\n[exposure]\nframes = 3\ninitial_s = 0.05\n"
-                        << "max_s = 20\n[rectangle]\nx = 253\ny = 246\nwidth = 6\nheight = 19\n"
-                        // The engine ages darks by the wall clock, which the simulated bench's
-                        // runs 300 times slower than its own: no dark expires in a test run.
-                        << "[darks]\nmax_age_s = 100000\n"
-                        << strategy;
-    PlanContext ctx;
-    ctx.specimens = catalogue;
-    ctx.axes = axes;
-    ctx.image_width = ctx.image_height = 512;
-    auto plan = LoadPlan(path, ctx);
-    EXPECT_TRUE(plan.ok()) << plan.error().message;
-    std::filesystem::remove(path);
-    return {*plan, ExpandPoints(*plan, ctx)};
-  };
-  auto measure = [&](gonio::testing::SimInstrument& inst, const Plan& plan,
-                     const std::vector<PlannedPoint>& points,
-                     const EngineOptions& options) -> std::pair<std::int64_t, double> {
-    // As goniod does: the estimate is made and kept when the run is created.
-    auto estimate = EstimateRun(*store, plan, points, inst.axes, options.linear_limit_adu,
-                                options.max_ranging_tries);
-    EXPECT_TRUE(estimate.ok());
-    auto sp = store->EnsureSpecimen(plan.specimen);
-    auto cfg = store->StoreConfig("test");
-    auto run = store->CreateRun(*sp, *cfg, plan.text, points);
-    EXPECT_TRUE(run.ok());
-    EXPECT_TRUE(store->SetRunEstimate(*run, *estimate).ok());
-    Engine engine(*inst.stages, *inst.camera, inst.meter, *store, options);
-    std::atomic<bool> stop{false};
-    const Status st = gonio::testing::RunResuming(engine, *run, plan, stop);
-    EXPECT_TRUE(st.ok()) << st.error().message;
-    std::printf("measured: %d ranging frames, darks %.0f s\n", engine.stats().ranging_frames,
-                engine.stats().dark_exposure_s);
-    return {*run, engine.stats().exposure_s};
+  auto print_stats = [](const gonio::testing::MeasuredRun& m) {
+    std::printf("measured: %d ranging frames, darks %.0f s\n", m.stats.ranging_frames,
+                m.stats.dark_exposure_s);
   };
 
   {  // The etched glass, measured and fitted: the throughput.
@@ -806,25 +767,10 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
     gonio::testing::SimInstrumentOptions o;
     o.truth = sim::MicrofacetTruth("beckmann", 0.493, 1.51);
     ASSERT_TRUE(inst.Start(o).ok());
-    auto [plan, points] = plan_for("etched-glass-E1", inst.axes);
-    const auto [run, exposed_s] = measure(inst, plan, points, eo);
-    ASSERT_GT(exposed_s, 0);
-    auto rows = store->Measurements(run);
-    ASSERT_TRUE(rows.ok());
-    std::vector<fitting::Sample> samples;
-    for (const MeasurementRow& r : *rows)
-      samples.push_back(fitting::SampleFromBenchAngles(r.point.theta_l_deg, 0, r.point.theta_v_deg,
-                                                       0, r.m.value, r.m.sigma));
-    fitting::FitOptions fo;
-    fo.eta = 1.51;
-    fo.floor = fitting::Floor::kAuto;  // the lens's stray light, as goniod fits it
-    auto fit = fitting::Fit(fitting::WithSystematic(samples, 0.02), fo);
-    ASSERT_TRUE(fit.ok()) << fit.error().message;
-    const std::string params = "{\"scale\": " + std::to_string(fit->scale.value) +
-                               ", \"width\": " + std::to_string(fit->width.value) +
-                               ", \"floor\": " + std::to_string(fit->floor.value) +
-                               ", \"chosen\": true}";
-    ASSERT_TRUE(store->StoreFitResult(run, "beckmann", params, "{}").ok());
+    auto etched = gonio::testing::MeasureThroughputRun(*store, inst, db_path, eo);
+    ASSERT_TRUE(etched.ok()) << etched.error().message;
+    print_stats(*etched);
+    ASSERT_GT(etched->exposure_s, 0);
   }
   auto throughput = store->LatestThroughput();
   ASSERT_TRUE(throughput.ok()) << throughput.error().message;
@@ -832,7 +778,9 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
 
   gonio::testing::SimInstrument inst;  // the ground glass, never measured
   ASSERT_TRUE(inst.Start(gonio::testing::SimInstrumentOptions{}).ok());
-  auto [plan, points] = plan_for("ground-glass-G1", inst.axes);
+  auto planned = gonio::testing::ForecastPlan(db_path, "ground-glass-G1", inst.axes);
+  ASSERT_TRUE(planned.ok()) << planned.error().message;
+  const auto& [plan, points] = *planned;
   auto seen = store->LatestExposures("ground-glass-G1");
   ASSERT_TRUE(seen.ok());
   ASSERT_FALSE(seen->has_value());
@@ -845,7 +793,11 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
   const auto measured_points =
       std::count_if(points.begin(), points.end(), [](const PlannedPoint& p) { return !p.skipped; });
   EXPECT_EQ(priced.from_forecast, measured_points);
-  const auto [run, exposed_s] = measure(inst, plan, points, eo);
+  auto uniform = gonio::testing::MeasureAsGoniod(*store, inst, plan, points, eo);
+  ASSERT_TRUE(uniform.ok()) << uniform.error().message;
+  print_stats(*uniform);
+  const std::int64_t run = uniform->run;
+  const double exposed_s = uniform->exposure_s;
   // The run keeps its estimate beside what its points took, which adds up to the engine's count.
   auto info = store->GetRun(run);
   ASSERT_TRUE(info.ok());
@@ -866,13 +818,18 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
 
   {  // An adaptive plan of the ground glass, forecast by simulating it on a point bench calibrated
      // on the etched glass's run (its throughput and its points' sigmas), then run to its target
-     // on the same bench (one simulated camera per machine).
-    auto [aplan, apoints] = plan_for("ground-glass-G1", inst.axes,
-                                     "[strategy]\nkind = \"adaptive\"\nbudget_s = 20000\n"
-                                     "target_rel_sigma_alpha = 5e-5\n");
+     // on the same bench (one simulated camera per machine). One realisation: the spread of real
+     // runs about the forecast is bench/forecast_spread.cc's (scripts/bench.sh forecast).
+    auto aplanned = gonio::testing::ForecastPlan(db_path, "ground-glass-G1", inst.axes,
+                                                 gonio::testing::kForecastAdaptive);
+    ASSERT_TRUE(aplanned.ok()) << aplanned.error().message;
+    const auto& [aplan, apoints] = *aplanned;
     EngineOptions with_axes = eo;
     with_axes.axes = inst.axes;  // the planner prices moves, as goniod configures it
-    const auto [arun, aexposed_s] = measure(inst, aplan, apoints, with_axes);
+    auto adaptive = gonio::testing::MeasureAsGoniod(*store, inst, aplan, apoints, with_axes);
+    ASSERT_TRUE(adaptive.ok()) << adaptive.error().message;
+    print_stats(*adaptive);
+    const std::int64_t arun = adaptive->run;
     auto ainfo = store->GetRun(arun);
     ASSERT_TRUE(ainfo.ok() && ainfo->estimate && ainfo->exposed_s);
     auto events = store->Events(arun);

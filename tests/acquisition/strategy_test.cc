@@ -426,6 +426,46 @@ TEST(Strategy, ABatchEndsWhereItsPredictionReachesTheTarget) {
   EXPECT_GE(trimmed, 1) << "no batch was predicted to reach the target: the test shows nothing";
 }
 
+// The provisional fit is the point model; a bench's points carry what it leaves out (the
+// rectangle and the apertures widen a lobe by 1-3 %). As they get precise that fit turns poor,
+// and a run that waited for it to converge went on to its budget. Its sigma is inflated by
+// sqrt(chi2/dof), so the run stops at the target on it and says the fit was poor.
+TEST(Strategy, AnAdaptiveRunStopsAtItsTargetWhenThePointModelFitsPoorly) {
+  Plan plan = PointBenchPlan(1, "adaptive");
+  plan.strategy.budget_s = 2e5;
+  plan.strategy.target_rel_sigma_alpha = 5e-5;
+  std::vector<PlannedPoint> points = ExpandGrid(plan, PlanContext{});
+  SelectByStrategy(plan, &points);
+  PointBench bench(PointBenchOptions{});
+  // A lobe tilted 5 % at 40 degrees either side of the refracted direction (a rectangle off the
+  // optical axis), which no width of the point model takes up.
+  auto tilted = [&](const PlannedPoint& p, const ExposurePolicy& exposure) {
+    Observation o = bench.Measure(p, exposure);
+    const double tt =
+        std::asin(std::sin(p.theta_l_deg * M_PI / 180) / plan.specimen.eta) * 180 / M_PI;
+    o.value *= 1 + 0.05 * (p.theta_v_deg + tt) / 40;
+    return o;
+  };
+  std::vector<Observation> seen;
+  for (const PlannedPoint& p : points)
+    if (!p.skipped) seen.push_back(tilted(p, CoarseExposure(plan)));
+  auto outcome =
+      RunAdaptive(plan, points, seen,
+                  [&](const std::vector<Choice>& batch) -> Result<std::vector<Observation>> {
+                    std::vector<Observation> out;
+                    for (const Choice& c : batch) out.push_back(tilted(c.point, plan.exposure));
+                    return out;
+                  });
+  ASSERT_TRUE(outcome.ok()) << outcome.error().message;
+  ASSERT_EQ(outcome->fit.status, fitting::FitStatus::kPoorFit)
+      << "the tilted lobe fitted well: the test shows nothing (" << outcome->message << ")";
+  EXPECT_EQ(outcome->stop, AdaptiveOutcome::Stop::kTarget) << outcome->message;
+  EXPECT_NE(outcome->message.find("provisional point-model fit is poor"), std::string::npos)
+      << outcome->message;
+  EXPECT_LE(outcome->fit.width.sigma / outcome->fit.width.value, 5e-5);
+  EXPECT_LT(outcome->spent_s, plan.strategy.budget_s / 4) << outcome->message;
+}
+
 // Before the run, the forecast says how many simulated runs fall short of the target, why, how far,
 // and what would help: a tight budget needs more time, a coarse grid more candidates.
 TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {

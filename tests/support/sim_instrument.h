@@ -6,6 +6,7 @@
 // One GigE camera per machine: tests using it hold the CTest resource lock "gvcp".
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -25,6 +26,9 @@ struct SimInstrumentOptions {
   double frame_timeout_s = 5;                     // the camera driver's, beyond the exposure
   // A third axis: the beam block's flag (role "beam_block", unit 3), out at 0 deg, in at 90.
   bool beam_block = false;
+  // The noise's seed: the lamp's, the meter's and the camera's (its sensor's draws and hot pixels),
+  // as gonio-sim's [clock] seed. One seed, one realisation of every run on the instrument.
+  std::uint64_t seed = 1;
 };
 
 class SimInstrument {
@@ -35,6 +39,7 @@ class SimInstrument {
     sim::SimConfig c = sim::TwoAxisConfig(o.clock_speed);
     c.lamp = o.lamp;
     c.faults = o.faults;
+    c.seed = c.camera.seed = o.seed;
     if (o.beam_block) {
       sim::AxisConfig flag{
           .role = "beam_block", .steps_per_degree = 100, .degrees_at_zero = 0, .options = {}};

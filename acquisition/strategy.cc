@@ -397,7 +397,7 @@ Result<AdaptiveStep> NextAdaptiveStep(const Plan& plan, const std::vector<Planne
   out.fit = *fit;
   const double rel = fit->width.sigma / fit->width.value;
   // A poor fit counts too: its sigma is inflated by sqrt(chi2/dof), so it is no smaller than what
-  // the run's own fit will give. The provisional fit is the point model on statistical sigmas; on a
+  // the run's own fit will give. The provisional fit is the point model on the stored sigmas; on a
   // real bench it becomes poor as the points get precise (the rectangle and the apertures move a
   // ground-glass lobe by 1-3 %, docs/measurement.md), and a run that waited for it to converge
   // went on 40 times past its target (bench/forecast_spread.cc).

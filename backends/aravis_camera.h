@@ -119,6 +119,7 @@ class AravisCamera final : public Camera {
   // Frame/trigger pairing by the camera's clock (Connect): the latch works; the latched counter,
   // its tick length, and the earliest frame stamp (ns, as Aravis reports it) this trigger accepts.
   bool stamps_ = false;
+  bool had_stamps_ = false;  // an earlier connection latched: a reopen must too
   std::uint64_t latched_ticks_ = 0;
   double ns_per_tick_ = 1;
   std::uint64_t not_before_ns_ = 0;

@@ -43,8 +43,8 @@ Status ReadFeatures(Reader& r, const toml::table& k, devices::VendorFeatures& f)
 Status ReadCamera(Reader& r, const toml::table& t, InstrumentConfig& c) {
   GONIO_TRY(r.Keys(t, "camera",
                    {"enabled", "address", "pixel_format", "gain_db", "black_level", "binning",
-                    "roi", "buffers", "frame_timeout_s", "retries", "linear_limit_adu",
-                    "status_poll_s", "heartbeat_timeout_s", "features"}));
+                    "roi", "buffers", "frame_timeout_s", "latch_timeout_s", "retries",
+                    "linear_limit_adu", "status_poll_s", "heartbeat_timeout_s", "features"}));
   devices::CameraSettings& s = c.camera;
   GONIO_TRY(r.Bool(t, "enabled", &c.camera_enabled));
   GONIO_TRY(r.Ipv4(t, "address", &s.address));
@@ -55,6 +55,7 @@ Status ReadCamera(Reader& r, const toml::table& t, InstrumentConfig& c) {
   GONIO_TRY(r.Integer(t, "buffers", &s.buffers, 2, 64));
   GONIO_TRY(r.Integer(t, "retries", &s.retries, 0, 10));
   GONIO_TRY(r.Number(t, "frame_timeout_s", &s.frame_timeout_s, 0.01, 600));
+  GONIO_TRY(r.Number(t, "latch_timeout_s", &s.latch_timeout_s, 0.01, 600));
   GONIO_TRY(r.Number(t, "linear_limit_adu", &s.linear_limit_adu, 100, 65535));
   GONIO_TRY(r.Number(t, "status_poll_s", &s.status_poll_s, 1e-4, 1));
   GONIO_TRY(r.Number(t, "heartbeat_timeout_s", &s.heartbeat_timeout_s, 0.5, 600));

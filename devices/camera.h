@@ -46,7 +46,11 @@ struct CameraSettings {
   int roi_x = 0, roi_y = 0, roi_width = 0, roi_height = 0;  // 0 width/height: the full sensor
   int buffers = 4;
   double frame_timeout_s = 5;  // beyond the exposure time
-  int retries = 2;             // failed or incomplete frames re-triggered, per Snap
+  // GigE Vision: how long a timestamp latch (taken before each trigger, and once at open to learn
+  // whether the camera has one) may take to appear. Not the frame's timeout: a latch waits for
+  // the camera's firmware, which a busy camera (or a loaded host's simulator) takes late.
+  double latch_timeout_s = 5;
+  int retries = 2;  // failed or incomplete frames re-triggered, per Snap
   // Keep trying to open (a dead controller's control lingers for its heartbeat timeout): at
   // least heartbeat_timeout_s + 3 s.
   double open_timeout_s = 10;

@@ -278,11 +278,19 @@ void SimulatedCamera::Step(double now) {
   if (const std::uint32_t ts = Reg(kTimestampControl); ts != 0) {
     SetReg(kTimestampControl, 0);
     if ((ts & 1u) != 0) timestamp_zero_ = now;
-    if ((ts & 2u) != 0) {
-      const std::uint64_t t = Ticks(now);
-      SetReg(kTimestampValueHigh, static_cast<std::uint32_t>(t >> 32));
-      SetReg(kTimestampValueLow, static_cast<std::uint32_t>(t & 0xffffffffu));
+    // latch_slow: a camera busy elsewhere takes the latch late (a loaded host's simulator is
+    // one); a latch written while one is pending is the same latch.
+    if ((ts & 2u) != 0 && !latch_pending_) {
+      const auto slow = MaybeFire(faults_, FaultKind::kLatchSlow, "camera", now);
+      latch_pending_ = true;
+      latch_due_ = now + (slow ? slow->duration_s : 0.0);
     }
+  }
+  if (latch_pending_ && now >= latch_due_) {
+    latch_pending_ = false;
+    const std::uint64_t t = Ticks(now);
+    SetReg(kTimestampValueHigh, static_cast<std::uint32_t>(t >> 32));
+    SetReg(kTimestampValueLow, static_cast<std::uint32_t>(t & 0xffffffffu));
   }
 
   // AcquisitionAbort (SFNC): a latch the firmware clears, so that an abort written between two

@@ -99,8 +99,9 @@ class SimulatedCamera {
   // Faults: frame_drop, frame_incomplete and frame_late (opportunity: each frame at the end of
   // its readout; an incomplete frame leaves with 30 % of its GVSP packets lost, which the client
   // sees as a buffer with missing packets; a late one leaves duration_s simulated seconds after
-  // its readout, stamped with its exposure's start as ever), cooler_fail (opportunity: each
-  // firmware step, so at_time_s).
+  // its readout, stamped with its exposure's start as ever), latch_slow (opportunity: each
+  // timestamp latch written; it is taken duration_s simulated seconds later), cooler_fail
+  // (opportunity: each firmware step, so at_time_s).
   static Result<std::unique_ptr<SimulatedCamera>> StartGigE(const Clock& clock, const Scene& scene,
                                                             AnglesSource angles, const Lamp& lamp,
                                                             CameraOptions options = {},
@@ -166,6 +167,8 @@ class SimulatedCamera {
   double ready_at_ = 0;            // when ready_frame_ may leave (frame_late holds it)
   bool handed_ = false;            // ready_frame_ is handed to the sender
   double timestamp_zero_ = 0;      // the clock's time when the counter was last reset
+  bool latch_pending_ = false;     // a latch written and not yet taken (latch_slow)
+  double latch_due_ = 0;           // when it is taken
   int drop_frames_ = 0;
   bool losing_packets_ = false;  // the last frame left with gvsp-lost-ratio raised
   struct CacheEntry {

@@ -6,7 +6,7 @@
 namespace gonio::sim {
 
 namespace {
-constexpr std::array<std::pair<FaultKind, std::string_view>, 11> kNames{{
+constexpr std::array<std::pair<FaultKind, std::string_view>, 12> kNames{{
     {FaultKind::kModbusTimeout, "modbus_timeout"},
     {FaultKind::kModbusCrc, "modbus_crc"},
     {FaultKind::kModbusDrop, "modbus_drop"},
@@ -18,6 +18,7 @@ constexpr std::array<std::pair<FaultKind, std::string_view>, 11> kNames{{
     {FaultKind::kMonitorDisconnect, "monitor_disconnect"},
     {FaultKind::kControlLost, "control_lost"},
     {FaultKind::kFrameLate, "frame_late"},
+    {FaultKind::kLatchSlow, "latch_slow"},
 }};
 }  // namespace
 

@@ -32,6 +32,7 @@ enum class FaultKind {
   kMonitorDisconnect,  // the power meter leaves the bus for `duration_s`
   kControlLost,        // the camera drops its controller, as on a missed heartbeat (GigE Vision)
   kFrameLate,          // a frame leaves the camera `duration_s` (simulated) after its readout
+  kLatchSlow,          // a timestamp latch is taken `duration_s` (simulated) after its write
 };
 
 // The config's spelling: "modbus_timeout", "modbus_crc", ...
@@ -50,7 +51,8 @@ struct FaultEvent {
   double probability = 0;
   int count = 1;           // how many times the event fires in all (for probability: at most)
   std::uint32_t code = 0;  // kAxisAlarm: the alarm code (e.g. 0x30 overload)
-  double duration_s = 0;   // kMonitorDisconnect: how long the meter stays away; kFrameLate: delay
+  double duration_s = 0;   // kMonitorDisconnect: how long the meter stays away; kFrameLate,
+                           // kLatchSlow: the delay
 };
 
 // Shorthands for tests and config: the n-th opportunity, the first at or after time t, or each

@@ -289,8 +289,12 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   m.rect_pixels = acc.pixels();
   m.rect_saturated = acc.Saturated();
   m.dark_id = dark->id;
-  // One frame gives no variance of its own: use the shot-noise-free floor of the dark's.
-  m.pixel_var = acc.frames() >= 2 ? acc.PixelVariance() : dark->pixel_var;
+  // One frame has no variance between frames: its own pixels' (reduce.h, FrameSpatialVariance),
+  // which hold the signal's shot noise. The dark's pixel variance, used here before, has none: an
+  // adaptive coarse scan's bright points were stored at a sixth of their sigma, and the planner's
+  // noise model, fitted to them, priced the peak 20 times too cheap (docs/acquisition.md).
+  const double spatial = acc.FirstFrameSpatialVariance();
+  m.pixel_var = acc.frames() >= 2 ? acc.PixelVariance() : spatial >= 0 ? spatial : dark->pixel_var;
   m.value = (m.rect_mean - dark->mean) / t / norm;
   // With a measured background the dark is subtracted from both and cancels: the point's own
   // frames' noise is all of stat.

@@ -16,6 +16,7 @@ void RectAccumulator::Add(const cv::Mat1w& frame) {
   if (n_ == 0) {
     rel_sum_ = cv::Mat1d::zeros(rect_.size());
     rel_sum2_ = cv::Mat1d::zeros(rect_.size());
+    first_spatial_var_ = FrameSpatialVariance(d);
   } else {
     frame_dsum2_ += (m - last_mean_) * (m - last_mean_);
   }
@@ -57,6 +58,44 @@ double RectAccumulator::PixelVariance() const {
   const cv::Mat1d r = rel_sum_ / n_;
   const double keep = std::max(0.5, 1 - cv::mean(r.mul(r))[0] / rect_.area());
   return std::max(0.0, cv::mean(v)[0]) * level * level / keep;
+}
+
+double FrameSpatialVariance(const cv::Mat1d& rect) {
+  std::vector<double> scaled;  // each difference squared over its variance in units of sigma^2
+  auto second = [&](int n, int lines, auto at) {
+    for (int l = 0; l < lines && n >= 3; ++l)
+      for (int i = 1; i + 1 < n; ++i) {
+        const double d = at(l, i - 1) - 2 * at(l, i) + at(l, i + 1);
+        scaled.push_back(d * d / 6);
+      }
+  };
+  auto first = [&](int n, int lines, auto at) {
+    if (n != 2) return;
+    std::vector<double> d;
+    for (int l = 0; l < lines; ++l) d.push_back(at(l, 1) - at(l, 0));
+    double mean = 0;  // the gradient, where there are lines to take it from
+    if (lines >= 2)
+      for (double x : d) mean += x / lines;
+    const double var = lines >= 2 ? 2 * (1 - 1.0 / lines) : 2;
+    for (double x : d) scaled.push_back((x - mean) * (x - mean) / var);
+  };
+  auto row = [&](int r, int i) { return rect(r, i); };
+  auto col = [&](int c, int i) { return rect(i, c); };
+  second(rect.cols, rect.rows, row);
+  second(rect.rows, rect.cols, col);
+  if (scaled.empty()) first(rect.cols, rect.rows, row), first(rect.rows, rect.cols, col);
+  if (scaled.empty()) return -1;
+  // A first guess from the median, then the mean of what lies within 3.5 sigma of it: a hot
+  // pixel's differences fall out, the noise's lose 0.05 % of their variance.
+  std::vector<double> sorted = scaled;
+  const auto mid = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2);
+  std::nth_element(sorted.begin(), mid, sorted.end());
+  const double guess = *mid / 0.4549;  // the median of chi-square with 1 dof
+  double sum = 0;
+  int kept = 0;
+  for (double x : scaled)
+    if (x <= 12 * guess) sum += x, ++kept;
+  return kept > 0 ? sum / kept : guess;
 }
 
 std::vector<double> NonIncreasingFit(std::span<const double> values,

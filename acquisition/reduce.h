@@ -34,6 +34,10 @@ class RectAccumulator {
   double FrameMeansVariance() const;
   // Pooled per-pixel variance between frames, what the pixels share left out (needs 2 frames).
   double PixelVariance() const;
+  // The per-pixel variance of the first frame from its own pixels, for a point of one frame
+  // (which has no variance between frames): FrameSpatialVariance. -1 before a frame or for a
+  // rectangle of one pixel.
+  double FirstFrameSpatialVariance() const { return first_spatial_var_; }
   double Max() const { return max_; }           // the brightest pixel seen
   int Saturated() const { return saturated_; }  // pixels at or above clip, summed over frames
 
@@ -45,7 +49,18 @@ class RectAccumulator {
   double frame_sum_ = 0, frame_sum2_ = 0, frame_dsum2_ = 0, last_mean_ = 0;  // frames' means
   double max_ = 0;
   int saturated_ = 0;
+  double first_spatial_var_ = -1;
 };
+
+// The per-pixel noise variance of one frame's rectangle (ADU^2) from its own pixels: the shot
+// noise of the signal and the dark, and the read noise, without a second frame. Second differences
+// x[i-1] - 2 x[i] + x[i+1] along each direction of 3 or more pixels (variance 6 sigma^2 for
+// independent pixels; a lobe's gradient across the rectangle cancels, and its curvature over 3
+// pixels is far below the noise); for a rectangle of at most 2 x 2, first differences less their
+// mean. The mean of their squares within 3.5 sigma of a first guess from their median, so that a
+// hot pixel does not count. A pattern fixed in the sensor (a real CCD's photo-response
+// non-uniformity, about 1 %) counts as noise here, which errs high. -1 for a single pixel.
+double FrameSpatialVariance(const cv::Mat1d& rect);
 
 // The weighted least-squares fit of a sequence by a non-increasing one (the pool-adjacent-
 // violators algorithm: Barlow, Bartholomew, Bremner and Brunk 1972): adjacent entries that rise

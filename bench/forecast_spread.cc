@@ -61,6 +61,18 @@ int main(int argc, char** argv) {
       (argc > 2 && !ParseNumber(argv[2], 10, 1000, &speed)) || runs_d != static_cast<int>(runs_d))
     return Usage();
   const int runs = static_cast<int>(runs_d);
+  // Where each seed's store is kept (FORECAST_KEEP): made now, so that a bad path stops the
+  // bench before its hour of runs rather than after the first.
+  std::string keep_dir;
+  if (const char* keep = std::getenv("FORECAST_KEEP"); keep != nullptr && *keep != '\0') {
+    keep_dir = keep;
+    std::error_code ec;
+    std::filesystem::create_directories(keep_dir, ec);
+    if (ec || !std::filesystem::is_directory(keep_dir))
+      return std::fprintf(stderr, "FORECAST_KEEP=%s: not a directory we can make (%s)\n",
+                          keep_dir.c_str(), ec ? ec.message().c_str() : "a file is in the way"),
+             2;
+  }
   const std::string base = (std::filesystem::temp_directory_path() /
                             ("gonio_forecast_" + std::to_string(::getpid()) + ".sqlite"))
                                .string();
@@ -98,7 +110,12 @@ int main(int argc, char** argv) {
   for (int seed = 1; seed <= runs; ++seed) {
     const std::string path = base + "." + std::to_string(seed);
     RemoveStore(path);
-    std::filesystem::copy_file(base, path);
+    std::error_code copied;
+    std::filesystem::copy_file(base, path, copied);
+    if (copied)
+      return std::fprintf(stderr, "seed %d: copying the store: %s\n", seed,
+                          copied.message().c_str()),
+             1;
     auto opened = Storage::Open(path);
     if (!opened.ok()) return std::fprintf(stderr, "%s\n", opened.error().message.c_str()), 1;
     Storage& store = **opened;
@@ -135,10 +152,14 @@ int main(int argc, char** argv) {
                 *info->exposed_s, ratio, rows->size(), long_points, outcome.c_str());
     std::fflush(stdout);
     opened->reset();
-    if (const char* keep = std::getenv("FORECAST_KEEP"); keep != nullptr && *keep != '\0') {
-      const std::string kept = std::string(keep) + "/seed_" + std::to_string(seed) + ".sqlite";
+    if (!keep_dir.empty()) {
+      const std::string kept = keep_dir + "/seed_" + std::to_string(seed) + ".sqlite";
       RemoveStore(kept);
-      std::filesystem::copy_file(path, kept);
+      std::error_code ec;
+      std::filesystem::copy_file(path, kept, ec);
+      if (ec)
+        std::fprintf(stderr, "seed %d: not kept at %s: %s\n", seed, kept.c_str(),
+                     ec.message().c_str());
     }
     RemoveStore(path);
   }

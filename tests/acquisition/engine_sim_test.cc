@@ -840,6 +840,18 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
     std::printf("adaptive run: %s; %s\n", outcome.c_str(),
                 DescribeExposureAgainstEstimate(*ainfo).c_str());
     EXPECT_EQ(outcome.rfind("reached sigma(alpha)/alpha", 0), 0u) << outcome;
+    // The coarse scan's points are candidates too: its point at the 45-degree lobe's peak tells
+    // more of alpha per second than any other. Without them the run took four times its forecast.
+    auto stored = store->Points(arun, /*pending_only=*/false);
+    ASSERT_TRUE(stored.ok());
+    int coarse_again = 0;
+    for (const PlannedPoint& c : *stored) {
+      if (c.index < static_cast<int>(apoints.size())) continue;  // the grid's, not a choice
+      for (const PlannedPoint& g : apoints)
+        if (!g.skipped && g.theta_l_deg == c.theta_l_deg && g.theta_v_deg == c.theta_v_deg)
+          ++coarse_again;
+    }
+    EXPECT_GT(coarse_again, 0) << "no coarse-scan point was chosen again";
     EXPECT_NE(ainfo->estimate->basis.find("20 simulated runs"), std::string::npos)
         << ainfo->estimate->basis;
     // The criterion, on what the run's points took (as for the uniform plan above); the

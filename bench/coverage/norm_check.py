@@ -23,7 +23,7 @@ def main():
         sys.exit(__doc__.strip().splitlines()[-1].strip())
     match = truth_log.Matcher(truth_log.groups(sys.argv[1], "norm_check"), "norm_check")
     by_exposure = collections.defaultdict(lambda: [0, 0.0, 0.0, 0.0, 0.0])
-    for path in sys.argv[2:]:
+    for path in truth_log.in_measured_order(sys.argv[2:]):
         try:
             rows = list(csv.DictReader(l for l in open(path) if not l.startswith("#")))
         except OSError as e:

@@ -6,6 +6,7 @@ angles (within half a step of the true ones), and takes that run's last `frames`
 frames (the averaged ones: the last ranging try is the first of them).
 """
 import csv
+import re
 import sys
 
 STEP_DEG = 1e-3  # config/sim.toml's 1000 steps per degree
@@ -25,6 +26,14 @@ def groups(path, tool):
     except (OSError, KeyError, ValueError) as e:
         sys.exit(f"{tool}: {path}: {e}")
     return out
+
+
+def in_measured_order(paths):
+    """The exports in the order their runs were measured, as instrument_coverage.sh numbers them
+    (run1.csv, run2.csv, ..., run10.csv): a shell glob puts run10.csv before run2.csv, and the
+    matcher, walking the log in order, then takes another run's frames at the same angles (every
+    pull but the first run's came out 4-8 times too wide that way)."""
+    return sorted(paths, key=lambda p: [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p)])
 
 
 class Matcher:

@@ -126,7 +126,7 @@ def main():
     print("|---|---|---|---|---|---|---|---|")
     totals = {"camera": [], "norm": [], "value": []}
     expected = {"camera": [], "norm": [], "value": []}  # what each part's own sigmas predict
-    for path in sys.argv[4:]:
+    for path in truth_log.in_measured_order(sys.argv[4:]):
         rect, rows = read_export(path)
         points = []
         for r in rows:

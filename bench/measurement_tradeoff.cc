@@ -9,7 +9,8 @@
 // Per case and way: the median fit time, the mean alpha bias (relative, and in the fits' own
 // sigmas), the share of fits whose 2-sigma interval covers the truth, and the mean chi2/dof.
 // The scene is not the whole instrument (no stages, camera or monitor): the noise is drawn from
-// the budget, not measured. Run: scripts/bench.sh measure [repeats]
+// the budget, not measured. Run: scripts/bench.sh measure [repeats] [sample], the second to run
+// one sample's cases alone (e.g. antiglare).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -82,6 +83,7 @@ std::vector<Clean> Render(const Case& c) {
 
 int main(int argc, char** argv) {
   const int repeats = argc > 1 ? std::max(1, std::atoi(argv[1])) : 20;
+  const std::string only = argc > 2 ? argv[2] : "";
   // Figure 12's samples (docs/reference.md), each family with its own width; 1 x 3 mm rectangles
   // (6 x 19 pixels) for the wide lobes, 0.3 mm (2 x 2) and 3 x 10 mm (19 x 62) for antiglare.
   std::vector<Case> cases;
@@ -107,6 +109,7 @@ int main(int argc, char** argv) {
       "| sample | family | mm | rect px | fit | median s | bias | bias/sigma | coverage "
       "| chi2/dof |\n|---|---|---|---|---|---|---|---|---|---|\n");
   for (const Case& c : cases) {
+    if (!only.empty() && c.sample != only) continue;
     const std::vector<Clean> clean = Render(c);
     for (const Way& w : ways) {
       std::mt19937_64 rng(12345);

@@ -28,7 +28,8 @@
 #                    8) real adaptive runs of the ground glass on the simulated instrument, one per
 #                    noise seed                    -> forecast_spread.md
 # Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|forecast|sweep|api|stop|rtu|soak ...]
-#        MEASURE_REPEATS=N sets measure's noise draws per case (default 20)
+#        MEASURE_REPEATS=N sets measure's noise draws per case (default 20); MEASURE_SAMPLE=name
+#        runs one sample's cases alone (ground, frosted, etched, antiglare)
 #        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20)
 #        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
 #        FORECAST_RUNS=N sets forecast's real adaptive runs (default 8)
@@ -66,7 +67,7 @@ for part in "${parts[@]}"; do
     scene)
       build-release/bench/scene_rectangle | tee out/bench/scene_rectangle.md ;;
     measure)
-      build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" \
+      build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" ${MEASURE_SAMPLE:+"$MEASURE_SAMPLE"} \
         | tee out/bench/measurement_tradeoff.md ;;
     coverage)  # holds the GigE Vision port: no other simulated camera may run meanwhile
       bench/instrument_coverage.sh build-release "${COVERAGE_RUNS:-20}" config/plan_demo.toml \

@@ -20,8 +20,9 @@
 // into the sphere, the glass path to the rough surface, the light direction from the hit point to
 // the source. That single trace carries the finite rectangle's spread of view directions, the
 // sphere-centre offset (it moves the hit points, hence the light direction) and the edge of the
-// plate; none needs its own correction. The finite source and lens apertures are averaged only
-// when ApertureMatters says so at the nominal geometry (narrow lobes; transmission only). With the
+// plate; none needs its own correction. The finite source and lens apertures are averaged where
+// they matter (transmission only): a wide lobe's when ApertureMatters says so at the nominal
+// geometry, a narrow lobe's wherever it is lit there (Scene::AperturePoints). With the
 // camera on the light side (reflection plans) the flat rough face is seen directly: the ray meets
 // z = 0, and the pixel's radiance is the truth's BRDF (no lens, no glass path; light reflected at
 // the hemisphere's back faces is not modelled). One refractive index for

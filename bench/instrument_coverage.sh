@@ -10,6 +10,8 @@
 #   PLAN       default config/plan_demo.toml;  SPEED  simulated seconds per real second, default 50
 #   SIM_ALPHA  the simulated sample's width instead of config/sim.toml's (e.g. 0.023 for
 #              bench/coverage/plan_antiglare.toml)
+#   SIM_MODEL  the simulated sample's family, beckmann (default) or ggx; each run is fitted with
+#              the same family (gonio-fit --model)
 #   SIM_THICKNESS  the plate's thickness in mm, for the simulated sample and the catalogue's
 #              specimens alike (the sphere centre then lies off the rough face unless 6)
 #   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later), and
@@ -32,7 +34,11 @@ sim_config=$work/sim.toml samples=$work/samples.toml
 thickness="s/^thickness_mm = [0-9.]*/thickness_mm = ${SIM_THICKNESS:-6.0}/"
 alpha=""
 [[ -n "${SIM_ALPHA:-}" ]] && alpha="s/^alpha = [0-9.]*/alpha = $SIM_ALPHA/"
-sed -e "$thickness" ${alpha:+-e "$alpha"} config/sim.toml > "$sim_config"
+family=${SIM_MODEL:-beckmann}
+[[ "$family" == beckmann || "$family" == ggx ]] ||
+  { echo "instrument_coverage: SIM_MODEL must be beckmann or ggx, not '$family'" >&2; exit 2; }
+sed -e "$thickness" -e "s/^model = \"[a-z]*\"/model = \"$family\"/" ${alpha:+-e "$alpha"} \
+  config/sim.toml > "$sim_config"
 sed -e "$thickness" config/samples.toml > "$samples"
 source tests/support/gonio_sim.sh
 trap 'stop_gonio_sim; rm -rf "$work"' EXIT
@@ -50,9 +56,9 @@ if [[ "$cool" != off ]]; then
 fi
 echo "# alpha's coverage through the whole simulated instrument"
 echo
-echo "$runs runs of \`$plan\` on gonio-sim at x$speed (config/sim.toml, Beckmann alpha = $truth," \
-  "a ${SIM_THICKNESS:-6.0} mm plate, the CCD $cool_label), fitted with \`gonio-fit --model beckmann\`. Command:" \
-  "\`${COVERAGE_COOL:+COVERAGE_COOL=$COVERAGE_COOL }${SIM_ALPHA:+SIM_ALPHA=$SIM_ALPHA }${SIM_THICKNESS:+SIM_THICKNESS=$SIM_THICKNESS }bench/instrument_coverage.sh $build $runs $plan $speed\`."
+echo "$runs runs of \`$plan\` on gonio-sim at x$speed (config/sim.toml, $family alpha = $truth," \
+  "a ${SIM_THICKNESS:-6.0} mm plate, the CCD $cool_label), fitted with \`gonio-fit --model $family\`. Command:" \
+  "\`${COVERAGE_COOL:+COVERAGE_COOL=$COVERAGE_COOL }${SIM_MODEL:+SIM_MODEL=$SIM_MODEL }${SIM_ALPHA:+SIM_ALPHA=$SIM_ALPHA }${SIM_THICKNESS:+SIM_THICKNESS=$SIM_THICKNESS }bench/instrument_coverage.sh $build $runs $plan $speed\`."
 echo
 for i in $(seq "$runs"); do
   "$build/daemon/gonio-acquire" -c "$work/instrument.toml" --samples "$samples" \
@@ -60,7 +66,7 @@ for i in $(seq "$runs"); do
     { echo "instrument_coverage: run $i failed:" >&2; tail -20 "$work/acquire.log" >&2; exit 1; }
   "$build/daemon/gonio-acquire" --db "$work/runs.sqlite" export "$i" --out "$work/run$i.csv" \
     > /dev/null
-  "$build/fitting/gonio-fit" "$work/run$i.csv" --model beckmann --out "$work/fit$i" \
+  "$build/fitting/gonio-fit" "$work/run$i.csv" --model "$family" --out "$work/fit$i" \
     > "$work/fit$i.txt" 2>&1 ||
     { echo "instrument_coverage: fit of run $i failed:" >&2; tail -20 "$work/fit$i.txt" >&2; exit 1; }
   if [[ -n "${COVERAGE_KEEP:-}" ]]; then

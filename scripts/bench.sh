@@ -17,10 +17,12 @@
 #   measurement_tradeoff  fit time against alpha bias and coverage: point model, rectangle,
 #                    rectangle + apertures, on Figure 12's samples -> measurement_tradeoff.md
 #   instrument_coverage.sh  alpha's 2-sigma coverage, bias and pull spread through the whole
-#                    simulated instrument (gonio-sim, drivers, engine, SQLite, gonio-fit), ground
-#                    glass (the demo's plan) and antiglare (auto rectangle); not in the default
-#                    set: COVERAGE_RUNS (default 20) runs of about 2 minutes per case
-#                                                  -> coverage_ground.md, coverage_antiglare.md
+#                    simulated instrument (gonio-sim, drivers, engine, SQLite, gonio-fit): ground
+#                    glass (the demo's plan; also a GGX truth and 3 and 9 mm plates), frosted,
+#                    etched, antiglare (auto rectangle; also a GGX truth and a fixed 3 x 10 mm
+#                    rectangle); not in the default set: COVERAGE_RUNS (default 20) runs of 2-6
+#                    minutes per case, nine cases (about 9 hours; COVERAGE_CASES picks some)
+#                                                  -> coverage_<case>.md
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass
 #                                                  -> acquire.md, acquire.json, acquire.png
@@ -30,7 +32,9 @@
 # Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|forecast|sweep|api|stop|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20); MEASURE_SAMPLE=name
 #        runs one sample's cases alone (ground, frosted, etched, antiglare)
-#        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20)
+#        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20);
+#        COVERAGE_CASES="ground antiglare_3x10 ..." runs those cases alone (ground, ground_ggx,
+#        ground_3mm, ground_9mm, frosted, etched, antiglare, antiglare_ggx, antiglare_3x10)
 #        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
 #        FORECAST_RUNS=N sets forecast's real adaptive runs (default 8)
 #        (default: all but coverage and soak)
@@ -70,10 +74,30 @@ for part in "${parts[@]}"; do
       build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" ${MEASURE_SAMPLE:+"$MEASURE_SAMPLE"} \
         | tee out/bench/measurement_tradeoff.md ;;
     coverage)  # holds the GigE Vision port: no other simulated camera may run meanwhile
-      bench/instrument_coverage.sh build-release "${COVERAGE_RUNS:-20}" config/plan_demo.toml \
-        | tee out/bench/coverage_ground.md
-      SIM_ALPHA=0.023 bench/instrument_coverage.sh build-release "${COVERAGE_RUNS:-20}" \
-        bench/coverage/plan_antiglare.toml | tee out/bench/coverage_antiglare.md ;;
+      # case, then the simulated sample (instrument_coverage.sh's SIM_* variables), then the plan
+      cases=(
+        "ground|-|config/plan_demo.toml"
+        "ground_ggx|SIM_MODEL=ggx SIM_ALPHA=0.394|config/plan_demo.toml"
+        "ground_3mm|SIM_THICKNESS=3.0|config/plan_demo.toml"
+        "ground_9mm|SIM_THICKNESS=9.0|config/plan_demo.toml"
+        "frosted|SIM_ALPHA=0.400|bench/coverage/plan_frosted.toml"
+        "etched|SIM_ALPHA=0.493|bench/coverage/plan_etched.toml"
+        "antiglare|SIM_ALPHA=0.023|bench/coverage/plan_antiglare.toml"
+        "antiglare_ggx|SIM_MODEL=ggx SIM_ALPHA=0.027|bench/coverage/plan_antiglare.toml"
+        "antiglare_3x10|SIM_ALPHA=0.023|bench/coverage/plan_antiglare_3x10.toml")
+      names=" ${cases[*]%%|*} "
+      wanted=" ${COVERAGE_CASES:-$names} "
+      for w in $wanted; do
+        [[ "$names" == *" $w "* ]] ||
+          { echo "bench.sh: unknown coverage case '$w' (${cases[*]%%|*})" >&2; exit 2; }
+      done
+      for c in "${cases[@]}"; do
+        IFS='|' read -r name sample plan <<< "$c"
+        [[ "$wanted" == *" $name "* ]] || continue
+        [[ "$sample" != - ]] || sample=""
+        env $sample bench/instrument_coverage.sh build-release "${COVERAGE_RUNS:-20}" "$plan" \
+          | tee "out/bench/coverage_$name.md"
+      done ;;
     acquire)
       build-release/bench/acquire_strategies "${ACQUIRE_REPEATS:-100}" out/bench/acquire.json \
         | tee out/bench/acquire.md

@@ -52,7 +52,7 @@ TEST(Plan, BadPlansAreRefusedWithFileAndLine) {
       << Refusal("rect_outside.toml");
   EXPECT_NE(Refusal("unknown_sample.toml")
                 .find("unknown_sample.toml:2: unknown sample 'frosted-F9' (the catalogue has: "
-                      "ground-glass-G1, etched-glass-E1, antiglare-A1)"),
+                      "ground-glass-G1, frosted-glass-F1, etched-glass-E1, antiglare-A1)"),
             std::string::npos)
       << Refusal("unknown_sample.toml");
   // A table that is missing has no line: the message says the whole file was searched.

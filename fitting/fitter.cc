@@ -497,6 +497,12 @@ struct ResponseCache {
     // apertures matter anywhere in the rectangle (DecideMode).
     std::optional<Response> aperture_probe;
     int rectangle_level = 0, aperture_level = 0;
+    // Where FitOptions::max_response_rays held the model below the level asked for, at the last
+    // decision: the next level's value over the held one's, which the model is scaled by (its
+    // correction), and their difference (value units), the quadrature's error that sigma takes
+    // in; 1 and 0 otherwise.
+    double correction = 1;
+    double quadrature = 0;
   };
   std::vector<PerSample> of;
   explicit ResponseCache(std::size_t n) : of(n) {}
@@ -536,16 +542,48 @@ Result<const Response*> ResponseAt(ResponseCache::PerSample& c, bool apertures, 
   return &*slots[level];
 }
 
+// The model at k = 1 over a level's rays without holding them (one finer than the budget).
+Result<double> StreamedValue(const ModelSpec& m, const Sample& s, std::size_t i,
+                             const ResponseLevel& level, double width, double eta) {
+  auto v = MeanOverLevel(*s.response->setup, s.response->at, level, [&](const ResponseRay& ray) {
+    return MeasurementModel(m, ray.l, ray.v, width, 1.0, eta);
+  });
+  if (!v.ok())
+    return Error{v.error().code, Where(s, i) + ": its instrument response: " + v.error().message};
+  return *v;
+}
+
+// A level held below the one asked for (the budget): the next level's value over its own, and
+// their difference in value units (0 and ratio 1 where not held).
+struct Held {
+  double ratio = 1, change = 0;
+};
+Held HeldAt(double held, double finer, double allowed) {
+  const double change = std::abs(finer - held);
+  if (change <= 0.5 * allowed) return {};
+  return {held > 0 ? finer / held : 1.0, change};
+}
+
 // From level `from` on, the coarsest level whose value the next finer one changes by at most
 // `allowed` / 2 (or the finest): a narrow lobe under a large rectangle needs more rays than a
-// wide one.
+// wide one. A next level of more than `max_rays` rays is evaluated streamed and not taken: the
+// level returned is the last within the budget, and `*held` says by how much it falls short.
 Result<int> Refine(const ModelSpec& m, ResponseCache::PerSample& c, bool apertures, int from,
                    const Sample& s, std::size_t i, double width, double k, double eta,
-                   double allowed) {
+                   double allowed, long max_rays, Held* held) {
+  *held = {};
   auto cur = ResponseAt(c, apertures, from, s, i);
   if (!cur.ok()) return cur.error();
   double value = k * ResponseValue(m, **cur, width, eta);
   for (int level = from;; ++level) {
+    const auto lv =
+        apertures ? ApertureLevel(level + 1, c.rectangle_level) : RectangleLevel(level + 1);
+    if (lv && MaxRaysAtLevel(*s.response->setup, *lv) > max_rays) {
+      auto streamed = StreamedValue(m, s, i, *lv, width, eta);
+      if (!streamed.ok()) return streamed.error();
+      *held = HeldAt(value, k * *streamed, allowed);
+      return level;
+    }
     auto next = ResponseAt(c, apertures, level + 1, s, i);
     if (!next.ok()) return next.error();
     if (*next == nullptr) return level;
@@ -560,15 +598,19 @@ Result<int> Refine(const ModelSpec& m, ResponseCache::PerSample& c, bool apertur
 // top where they change the nominal value by more than that too; each refined until finer rays
 // change it by at most half that.
 Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, ResponseCache& cache,
-                       double width, double k, double eta, double tolerance) {
+                       double width, double k, double eta, double tolerance, long max_rays) {
   if (!s.response || !s.response->setup) return 0;
   ResponseCache::PerSample& c = cache.of[i];
+  c.quadrature = 0;
+  c.correction = 1;
   auto coarse = ResponseAt(c, false, 0, s, i);
   if (!coarse.ok()) return coarse.error();
   const Response& r0 = **coarse;
   const double point = k * MeasurementModel(m, r0.l0, r0.v0, width, 1.0, eta);
   const double allowed = tolerance * s.sigma;
-  auto level = Refine(m, c, false, c.rectangle_level, s, i, width, k, eta, allowed);
+  Held rectangle_held;
+  auto level = Refine(m, c, false, c.rectangle_level, s, i, width, k, eta, allowed, max_rays,
+                      &rectangle_held);
   if (!level.ok()) return level.error();
   if (*level != c.rectangle_level) {  // the apertures' responses were built on the old rays
     c.apertures.clear();
@@ -596,12 +638,27 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
       k * std::abs(ResponseValue(m, *c.aperture_probe, width, eta) -
                    ResponseValue(m, r0, width, eta)) >
           allowed;
-  if (apertures_matter) {
+  Held apertures_held;
+  const auto coarsest = ApertureLevel(c.aperture_level, c.rectangle_level);
+  if (apertures_matter &&
+      MaxRaysAtLevel(*s.response->setup, *coarsest) > max_rays) {  // none fits the budget
+    auto streamed = StreamedValue(m, s, i, *coarsest, width, eta);
+    if (!streamed.ok()) return streamed.error();
+    apertures_held = HeldAt(k * ResponseValue(m, rect, width, eta), k * *streamed, allowed);
+  } else if (apertures_matter) {
     mode = 2;
-    auto ap = Refine(m, c, true, c.aperture_level, s, i, width, k, eta, allowed);
+    auto ap = Refine(m, c, true, c.aperture_level, s, i, width, k, eta, allowed, max_rays,
+                     &apertures_held);
     if (!ap.ok()) return ap.error();
     c.aperture_level = *ap;
   }
+  // Each held step's ratio corrects the model to the finer value at this estimate (the rounds
+  // take it again as the fit moves); each change, the error of a model that would not be
+  // corrected, stays in sigma: the corrected one's error is the finer level's, not known
+  // without tracing yet finer rays.
+  c.correction = rectangle_held.ratio * apertures_held.ratio;
+  c.quadrature = std::hypot(rectangle_held.change, apertures_held.change);
+  if (c.quadrature > 0 && mode == 0) mode = 1;  // the correction is the rectangle's
   return mode;
 }
 
@@ -617,13 +674,13 @@ SampleModel BuildModel(const Sample& s, std::size_t i, const ResponseCache& cach
     const bool has = !c.rectangle.empty() && c.rectangle[0].has_value();
     sm.g.push_back(has ? PrecomputeGeometry(c.rectangle[0]->l0, c.rectangle[0]->v0, eta)
                        : PrecomputeGeometry(s.light, s.view, eta));
-    sm.w.push_back(1);
+    sm.w.push_back(c.correction);
     return sm;
   }
   sm.g.reserve(r->rays.size());
   for (const ResponseRay& ray : r->rays) {
     sm.g.push_back(PrecomputeGeometry(ray.l, ray.v, eta));
-    sm.w.push_back(ray.weight / r->pixels);
+    sm.w.push_back(c.correction * ray.weight / r->pixels);
   }
   return sm;
 }
@@ -652,7 +709,9 @@ double ModelAt(const FitSummary& f, const Sample& sample, const StagePosition& a
     std::tie(s.light, s.view) = NominalDirections(at);
   }
   ResponseCache cache(1);
-  auto mode = DecideMode(f.model, s, 0, cache, w, k, eta, FitOptions{}.response_tolerance);
+  const FitOptions defaults;
+  auto mode = DecideMode(f.model, s, 0, cache, w, k, eta, defaults.response_tolerance,
+                         defaults.max_response_rays);
   if (!mode.ok()) return MeasurementModel(f.model, s.light, s.view, w, k, eta);
   const SampleModel sm = BuildModel(s, 0, cache, *mode, eta);
   double value = 0;
@@ -706,6 +765,7 @@ Status FitOptions::Validate() const {
   if (max_iterations < 1) return InvalidArgument("max_iterations must be >= 1");
   if (!(std::isfinite(response_tolerance) && response_tolerance >= 0))
     return InvalidArgument("response_tolerance must be a finite number >= 0");
+  if (max_response_rays < 1) return InvalidArgument("max_response_rays must be >= 1");
   if (!automatic_starts && !initial_width)
     return InvalidArgument("automatic_starts = false needs an initial_width");
   return OkStatus();
@@ -980,7 +1040,8 @@ Result<std::vector<int>> DecideModes(std::span<const Sample> samples, const FitO
   std::vector<int> modes(samples.size(), 0);
   if (!o.use_response) return modes;
   for (std::size_t i = 0; i < samples.size(); ++i) {
-    auto m = DecideMode(o.model, samples[i], i, cache, width, k, eta, o.response_tolerance);
+    auto m = DecideMode(o.model, samples[i], i, cache, width, k, eta, o.response_tolerance,
+                        o.max_response_rays);
     if (!m.ok()) return m.error();
     modes[i] = *m;
   }
@@ -996,6 +1057,55 @@ std::vector<std::array<int, 3>> Decided(const std::vector<int>& modes, const Res
   for (std::size_t i = 0; i < modes.size(); ++i)
     out.push_back({modes[i], cache.of[i].rectangle_level, cache.of[i].aperture_level});
   return out;
+}
+
+// `samples` with each capped sample's quadrature error (ResponseCache) added to its sigma, into
+// `out` (sized once, so that a Problem's span over it stays valid); its count and largest share.
+std::pair<int, double> WithQuadrature(std::span<const Sample> samples, const ResponseCache& cache,
+                                      std::vector<Sample>& out) {
+  if (out.size() != samples.size()) out.assign(samples.begin(), samples.end());
+  int capped = 0;
+  double largest = 0;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const double q = cache.of[i].quadrature;
+    out[i].sigma = std::hypot(samples[i].sigma, q);
+    if (q <= 0) continue;
+    ++capped;
+    largest = std::max(largest, q / samples[i].sigma);
+  }
+  return {capped, largest};
+}
+
+void Tell(const FitOptions& o, const std::string& what) {
+  if (o.progress) o.progress(what);
+}
+
+std::string Rays(long n) {
+  std::ostringstream s;
+  if (n >= 1000000)
+    s << std::setprecision(3) << n / 1e6 << " M";
+  else
+    s << n;
+  return s.str() + " rays";
+}
+
+// What a set of decisions models: "R samples over their rectangle, A with the apertures, C held
+// to the ray budget; N rays".
+std::string DescribeModels(const std::vector<int>& modes, std::span<const SampleModel> models,
+                           int capped) {
+  int rect = 0, ap = 0;
+  long rays = 0;
+  for (std::size_t i = 0; i < modes.size(); ++i) {
+    rect += modes[i] >= 1;
+    ap += modes[i] == 2;
+    rays += static_cast<long>(models[i].g.size());
+  }
+  std::ostringstream s;
+  s << rect << " of " << modes.size() << " samples over their rectangle, " << ap
+    << " with the apertures";
+  if (capped > 0) s << ", " << capped << " held to the ray budget";
+  s << "; " << Rays(rays) << " a pass";
+  return s.str();
 }
 
 double Median(std::vector<double> v) {
@@ -1036,8 +1146,13 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
   // The samples' models, decided at the best start; every set stays alive while a problem that
   // was built on it may be the winner's.
   ResponseCache cache(samples.size());
+  Tell(o, std::string("a solve of ") + std::to_string(samples.size()) + " samples, floor " +
+              (o.floor == Floor::kFit ? "fitted" : "off") + ": deciding their responses");
   auto modes = DecideModes(samples, o, cache, starts[0].width, starts[0].k, o.eta);
   if (!modes.ok()) return modes.error();
+  // The samples as fitted: sigma with the quadrature's error where the budget held a model.
+  std::vector<Sample> fitted;
+  auto capped = WithQuadrature(samples, cache, fitted);
   std::vector<std::unique_ptr<std::vector<SampleModel>>> model_sets;
   auto build = [&](const std::vector<int>& m, double eta) {
     auto set = std::make_unique<std::vector<SampleModel>>();
@@ -1049,8 +1164,17 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
   std::vector<double> sigmas;
   for (const Sample& s : samples) sigmas.push_back(s.sigma);
   auto decided = Decided(*modes, cache);
-  Problem p{samples,        build(*modes, o.eta), o.floor == Floor::kFit,
+  // The held samples' corrections the models were built with: a round whose corrections move a
+  // prediction by more than half the tolerance has not settled either.
+  auto corrections = [&cache] {
+    std::vector<double> c;
+    for (const auto& one : cache.of) c.push_back(one.correction);
+    return c;
+  };
+  std::vector<double> built_with = corrections();
+  Problem p{fitted,         build(*modes, o.eta), o.floor == Floor::kFit,
             Median(sigmas), o.stage.get(),        &dark};
+  Tell(o, DescribeModels(*modes, p.models, capped.first));
 
   // Local fits: the caller's start and the half-width estimate always run, then the best scan
   // minima, up to max_local_fits (plus those first two).
@@ -1063,6 +1187,13 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
   for (std::size_t k = 0; k < n_fits; ++k) {
     std::unique_ptr<LocalFit> f = SolveFrom(p, o, starts[k].width, starts[k].k, o.eta, 0);
     ++out.local_fits;
+    {
+      std::ostringstream t;
+      t << "local fit " << k + 1 << " of " << n_fits << " from " << WidthName(o.model.family) << " "
+        << starts[k].width << ": " << (f->converged ? "converged" : "did not converge") << " after "
+        << f->iterations << " iterations";
+      Tell(o, t.str());
+    }
     if (f->converged && (!winner || f->cost < winner->cost))
       winner = std::move(f);
     else if (!f->converged && first_failure.empty())
@@ -1083,10 +1214,19 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
     auto next = DecideModes(samples, o, cache, w, k, eta);
     if (!next.ok()) return next.error();
     auto now = Decided(*next, cache);
-    if (now == decided) break;
+    const std::vector<double> corrected = corrections();
+    bool moved = false;
+    for (std::size_t i = 0; i < samples.size(); ++i)
+      moved = moved || std::abs(corrected[i] - built_with[i]) * std::abs(samples[i].value) >
+                           0.5 * o.response_tolerance * samples[i].sigma;
+    if (now == decided && !moved) break;
     decided = std::move(now);
+    built_with = corrected;
     modes = std::move(next);
+    capped = WithQuadrature(samples, cache, fitted);
     p.models = build(*modes, o.eta);
+    Tell(o,
+         "responses re-decided at the solution: " + DescribeModels(*modes, p.models, capped.first));
     auto f = SolveFrom(p, o, w, k, eta, winner->x[3] * p.floor_unit);
     ++out.response.rounds;
     if (!f->converged) {
@@ -1111,6 +1251,7 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
     out.response.apertures += (*modes)[i] == 2;
     out.response.rays += static_cast<long>(p.models[i].g.size());
   }
+  std::tie(out.response.capped, out.response.capped_largest) = capped;
   out.dark.sets = dark.count;
   out.dark.samples = dark.samples;
   for (int d = 0; d < dark.count; ++d)
@@ -1119,6 +1260,12 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
   const bool cov_ok = FillUncertainties(*winner, p, o, out);
   Judge(cov_ok, out);
   out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  {
+    std::ostringstream t;
+    t << "solved: " << WidthName(o.model.family) << " " << out.width.value << ", chi2/dof "
+      << out.reduced_chi2 << ", " << std::setprecision(3) << out.seconds << " s";
+    Tell(o, t.str());
+  }
   return out;
 }
 
@@ -1268,6 +1415,9 @@ std::optional<JointUse> JointProfileAt(std::span<const Sample> used, const std::
   auto refit = [&](const Eigen::VectorXd& d) -> std::optional<FitSummary> {
     auto m = MovedBy(used, q, d);
     if (!m) return std::nullopt;
+    std::ostringstream t;
+    t << "the geometry's profile: a refit with its setup moved by (" << d.transpose() << ")";
+    Tell(o, t.str());
     return MovedRefit(*m, o, fit);
   };
   std::optional<FitSummary> centre = at.isZero() ? std::optional<FitSummary>(base) : refit(at);
@@ -1552,6 +1702,9 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
     return fit;
   }
   const BenchOptics& b = known->response->setup->bench;
+  Tell(o,
+       "the geometry's uncertainty: refits with the angles, the thickness and the rectangle "
+       "as stated and moved");
   GeometryUse g;
   g.stated = true;
   std::ostringstream note;

@@ -29,6 +29,7 @@
 //     describe the data (chi-square p-value < 1e-6): its width is then not a measurement.
 #pragma once
 
+#include <functional>
 #include <optional>
 #include <span>
 #include <string>
@@ -71,6 +72,15 @@ struct FitOptions {
   // The apertures are added the same way, on top of the rectangle. false: the point model for all.
   bool use_response = true;
   double response_tolerance = 0.1;
+  // The most rays one sample's model may hold (memory, and the time of every evaluation). Where
+  // the refinement asks for a finer level than that, the model stays at the finest level within
+  // it, the next level is evaluated once (without holding its rays), and their difference, the
+  // quadrature's error, joins the sample's sigma in quadrature (ResponseUse::capped). A narrow
+  // lobe under a large rectangle with its apertures (antiglare under 3 x 10 mm: 1 178 pixels
+  // times 144 cone pairs or more) is where it binds; the demo's samples use a few thousand.
+  long max_response_rays = 65536;
+  // Told what a long fit is doing (each solve, its responses, its result); may be empty.
+  std::function<void(const std::string&)> progress;
 
   // Valid options, or an InvalidArgument naming the bad field.
   Status Validate() const;
@@ -186,6 +196,11 @@ struct ResponseUse {
   int apertures = 0;              // of which also over the source and lens cones
   long rays = 0;                  // model evaluations per pass over the samples
   int rounds = 0;                 // solves until the per-sample decision settled
+  // Samples whose model FitOptions::max_response_rays held below the level the tolerance asked
+  // for, and the largest of their quadrature errors as a fraction of the sample's own sigma
+  // (added to it in quadrature for the fit).
+  int capped = 0;
+  double capped_largest = 0;
 };
 
 struct FitSummary {

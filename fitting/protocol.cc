@@ -1,16 +1,23 @@
 #include "fitting/protocol.h"
 
 #include <cmath>
+#include <string>
 
 namespace gonio::fitting {
 
 namespace {
 
-Result<std::vector<FitSummary>> FitEach(std::span<const Sample> samples, const ProtocolOptions& o) {
+// `what`: the samples' part, for progress ("normal incidence", "all incidences").
+Result<std::vector<FitSummary>> FitEach(std::span<const Sample> samples, const ProtocolOptions& o,
+                                        const std::string& what) {
   std::vector<FitSummary> fits;
   for (const ModelSpec& m : o.models) {
     FitOptions fo = o.base;
     fo.model = m;
+    if (o.base.progress)
+      fo.progress = [&o, label = Describe(m) + ", " + what + ": "](const std::string& s) {
+        o.base.progress(label + s);
+      };
     auto r = Fit(samples, fo);
     if (!r.ok()) return Error{r.error().code, Describe(m) + ": " + r.error().message};
     fits.push_back(*r);
@@ -47,13 +54,13 @@ Result<ProtocolResult> RunProtocol(std::span<const Sample> samples,
     if (std::abs(g.theta_l_deg) < options.normal_incidence_deg) normal = &g;
   r.protocol = normal != nullptr && r.groups.size() > 1;
   if (r.protocol) {
-    auto fits = FitEach(normal->samples, options);
+    auto fits = FitEach(normal->samples, options, "normal incidence");
     if (!fits.ok()) return fits.error();
     r.normal_fits = std::move(fits).value();
     for (const FitSummary& f : r.normal_fits)
       r.predictions.push_back(PredictIncidences(f, samples));
   }
-  auto joint = FitEach(samples, options);
+  auto joint = FitEach(samples, options, "all incidences");
   if (!joint.ok()) return joint.error();
   r.joint_fits = std::move(joint).value();
   r.choice = SelectModel(r.joint_fits);

@@ -370,6 +370,22 @@ std::vector<ResponseRay> ApertureCones(const V& l, const V& v, double weight,
   return out;
 }
 
+namespace {
+
+// Each base ray of `base` spread over the cones (ComputeResponseWithApertures), handed to `use`
+// one base ray's cones at a time.
+template <typename Use>
+void ForEachConeSet(const Response& base, int rings, int per_ring, Use&& use) {
+  const double golden = optics::kPi * (3 - std::sqrt(5.0));
+  for (std::size_t q = 0; q < base.rays.size(); ++q) {
+    const ResponseRay& ray = base.rays[q];
+    use(ApertureCones(ray.l, ray.v, ray.weight, base.source_half_angle, base.receiver_half_angle,
+                      rings, per_ring, golden * double(q)));
+  }
+}
+
+}  // namespace
+
 Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const StagePosition& at,
                                               int rings, int per_ring, int max_base_rays) {
   auto base = ComputeResponse(setup, at, max_base_rays);
@@ -377,14 +393,41 @@ Result<Response> ComputeResponseWithApertures(const ResponseSetup& setup, const 
   Response out = *base;
   out.rays.clear();
   out.apertures = true;
-  const double golden = optics::kPi * (3 - std::sqrt(5.0));
-  for (std::size_t q = 0; q < base->rays.size(); ++q) {
-    const ResponseRay& ray = base->rays[q];
-    auto cones = ApertureCones(ray.l, ray.v, ray.weight, base->source_half_angle,
-                               base->receiver_half_angle, rings, per_ring, golden * double(q));
+  ForEachConeSet(*base, rings, per_ring, [&out](const std::vector<ResponseRay>& cones) {
     out.rays.insert(out.rays.end(), cones.begin(), cones.end());
-  }
+  });
   return out;
+}
+
+long MaxRaysAtLevel(const ResponseSetup& setup, const ResponseLevel& level) {
+  const SensorRectangle& r = setup.rectangle;
+  const long w = static_cast<long>(r.width) * r.binning_h,
+             h = static_cast<long>(r.height) * r.binning_v;
+  const long n = w * h;
+  long rays = n;
+  if (level.max_rays >= 1 && n > level.max_rays) {
+    const long block = static_cast<long>(std::ceil(std::sqrt(double(n) / level.max_rays)));
+    rays = ((w + block - 1) / block) * ((h + block - 1) / block);
+  }
+  const long per_cone = static_cast<long>(level.cone_rings) * level.cone_per_ring;
+  return level.cone_rings > 0 ? rays * per_cone * per_cone : rays;
+}
+
+Result<double> MeanOverLevel(const ResponseSetup& setup, const StagePosition& at,
+                             const ResponseLevel& level,
+                             const std::function<double(const ResponseRay&)>& f) {
+  auto base = ComputeResponse(setup, at, level.max_rays);
+  if (!base.ok()) return base.error();
+  double sum = 0;
+  if (level.cone_rings == 0) {
+    for (const ResponseRay& ray : base->rays) sum += ray.weight * f(ray);
+  } else {
+    ForEachConeSet(*base, level.cone_rings, level.cone_per_ring,
+                   [&](const std::vector<ResponseRay>& cones) {
+                     for (const ResponseRay& ray : cones) sum += ray.weight * f(ray);
+                   });
+  }
+  return sum / base->pixels;
 }
 
 std::optional<ResponseLevel> RectangleLevel(int level) {

@@ -30,6 +30,7 @@
 // it is tested against (tests/fitting/response_test.cc renders the scene's rectangle).
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -146,6 +147,15 @@ std::optional<ResponseLevel> RectangleLevel(int level);
 std::optional<ResponseLevel> ApertureLevel(int level, int rectangle_level);
 Result<Response> ComputeAtLevel(const ResponseSetup& setup, const StagePosition& at,
                                 const ResponseLevel& level);
+// At most how many rays ComputeAtLevel gives (the rectangle's rays or blocks times both cones'
+// directions), known before tracing one: the fitter keeps a sample's model within a budget.
+long MaxRaysAtLevel(const ResponseSetup& setup, const ResponseLevel& level);
+// sum_j w_j f(l_j, v_j) / N over the rays ComputeAtLevel would give, without holding them: a
+// level finer than a model's budget is evaluated this way (a 3 x 10 mm rectangle with fine cones
+// is millions of rays). Errors: those of ComputeResponse.
+Result<double> MeanOverLevel(const ResponseSetup& setup, const StagePosition& at,
+                             const ResponseLevel& level,
+                             const std::function<double(const ResponseRay&)>& f);
 
 // One pair spread over the two cones (what ComputeResponseWithApertures does to each ray): the
 // product of the cones' directions, `weight` shared by the quadrature's weights (they sum to

@@ -8,6 +8,7 @@
 // Exit status: 0 when at least one model was fitted, 1 when every fit failed, 2 for bad input.
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -87,6 +88,11 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
                 << " with the apertures too), " << f.response.rays
                 << " model evaluations per pass, " << f.response.rounds << " solve(s); "
                 << std::setprecision(3) << f.seconds << " s\n";
+    if (f.response.capped > 0)
+      std::cout << "    ray budget: " << f.response.capped
+                << " sample(s) modelled below the level the tolerance asked for (more than "
+                   "--max-response-rays); their quadrature error is in their sigma, at most "
+                << std::setprecision(3) << f.response.capped_largest << " of the sample's own\n";
     if (f.dark.sets > 0)
       std::cout << "    dark sets: " << f.dark.sets << " shared error(s) in the fit, over "
                 << f.dark.samples << " samples (the largest found: " << std::setprecision(2)
@@ -212,6 +218,12 @@ int main(int argc, char** argv) {
                  "use a sample's response where it changes the prediction by more than this "
                  "fraction of its sigma")
       ->capture_default_str();
+  app.add_option("--max-response-rays", base.max_response_rays,
+                 "the most rays one sample's model may hold; a finer level's difference joins "
+                 "the sample's sigma (its quadrature error)")
+      ->capture_default_str();
+  bool quiet = false;
+  app.add_flag("--quiet", quiet, "no progress on standard error, however long the fit");
   app.add_option("--out", out_dir,
                  "directory for fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json");
   CLI11_PARSE(app, argc, argv);
@@ -251,6 +263,14 @@ int main(int argc, char** argv) {
     return fail_input(s.error().message);
   if (systematic > 0) *samples = WithSystematic(*samples, systematic);
 
+  // Progress on standard error once a fit has run for a few seconds (a narrow lobe under a large
+  // rectangle takes minutes); short fits stay quiet.
+  const auto t0 = std::chrono::steady_clock::now();
+  if (!quiet)
+    base.progress = [t0](const std::string& what) {
+      const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      if (s >= 5) std::cerr << "gonio-fit: [" << std::lround(s) << " s] " << what << std::endl;
+    };
   auto run = RunProtocol(*samples, ProtocolOptions{.models = *models, .base = base});
   if (!run) {
     std::cerr << "gonio-fit: error: " << run.error().message << "\n";

@@ -373,6 +373,74 @@ TEST(ResponseTest, ANarrowLobesTailUnderALargeRectangleTakesTheAperturesFromItsE
   EXPECT_EQ(f->response.apertures, static_cast<int>(samples.size()));
 }
 
+// A level's streamed mean (what the fitter evaluates past its ray budget) is the mean over the
+// rays ComputeAtLevel holds, and the bound known before tracing is never below their count.
+TEST(ResponseTest, ALevelsStreamedMeanIsItsRaysMeanAndItsBoundHoldsThem) {
+  const auto truth = sim::MicrofacetTruth("beckmann", 0.023, 1.51);
+  const auto setup = CentredSetup(3, 10, 6);  // 19 x 62 pixels
+  const auto at = At(30, 1.2);
+  const auto f = [&](const fitting::ResponseRay& r) { return truth->BtdfCos(r.l, r.v); };
+  for (const auto& level : {*fitting::RectangleLevel(0), *fitting::RectangleLevel(3),
+                            *fitting::ApertureLevel(0, 1), *fitting::ApertureLevel(1, 3)}) {
+    auto held = fitting::ComputeAtLevel(setup, at, level);
+    ASSERT_TRUE(held.ok()) << held.error().message;
+    auto streamed = fitting::MeanOverLevel(setup, at, level, f);
+    ASSERT_TRUE(streamed.ok()) << streamed.error().message;
+    const double mean = ResponseRectangle(*truth, *held);
+    ASSERT_GT(mean, 0);
+    EXPECT_NEAR(*streamed / mean, 1.0, 1e-12) << level.max_rays << " " << level.cone_rings;
+    const long bound = fitting::MaxRaysAtLevel(setup, level);
+    EXPECT_LE(static_cast<long>(held->rays.size()), bound);
+    EXPECT_GT(static_cast<long>(held->rays.size()), bound * 9 / 10);  // a bound, not a guess
+  }
+  // A stage position that sees nothing is refused as ComputeResponse refuses it.
+  EXPECT_FALSE(fitting::MeanOverLevel(setup, {0, 90, 0}, *fitting::RectangleLevel(0), f).ok());
+}
+
+// Antiglare under 1 x 3 mm with the apertures, noise-free values from a fine level: with a ray
+// budget below what the tolerance asks for, the fit models the held samples at a coarser level
+// whose error is real (more than a sample's own sigma somewhere) and is carried in their sigma,
+// so alpha still covers the truth, with a wider sigma than the fit that had the rays.
+TEST(ResponseTest, AModelHeldToTheRayBudgetCarriesItsQuadratureErrorInSigma) {
+  const auto truth = sim::MicrofacetTruth("beckmann", 0.023, 1.51);
+  auto setup = std::make_shared<fitting::ResponseSetup>(CentredSetup(1, 3, 6));
+  std::vector<fitting::Sample> samples;
+  for (double ti : {0.0, 30.0})
+    for (double off = -1.5; off <= 1.5 + 1e-9; off += 0.25) {
+      const auto at = At(ti, off);
+      auto fine = fitting::MeanOverLevel(
+          *setup, at, *fitting::ApertureLevel(4, 3),
+          [&](const fitting::ResponseRay& r) { return truth->BtdfCos(r.l, r.v); });
+      ASSERT_TRUE(fine.ok()) << fine.error().message;
+      fitting::Sample s;
+      std::tie(s.light, s.view) = fitting::NominalDirections(at);
+      s.value = 1000 * *fine;
+      s.sigma = s.sigma_stat = std::hypot(5e-4 * s.value, 2e-3);
+      s.response = fitting::PointResponse{setup, at};
+      samples.push_back(s);
+    }
+  fitting::FitOptions o;
+  o.max_response_rays = 1L << 22;  // room for every level this rectangle has
+  auto full = fitting::Fit(samples, o);
+  ASSERT_TRUE(full.ok()) << full.error().message;
+  ASSERT_EQ(full->status, fitting::FitStatus::kConverged) << full->message;
+  EXPECT_EQ(full->response.capped, 0);
+  EXPECT_LT(std::abs(full->width.value - 0.023), 2 * full->width.sigma) << full->width.value;
+
+  o.max_response_rays = 600;  // a coarse rectangle's rays with few cone directions
+  auto held = fitting::Fit(samples, o);
+  ASSERT_TRUE(held.ok()) << held.error().message;
+  ASSERT_NE(held->status, fitting::FitStatus::kFailed) << held->message;
+  EXPECT_GT(held->response.capped, static_cast<int>(samples.size()) / 2);
+  EXPECT_GT(held->response.capped_largest, 1.0);  // the coarse model's error is real
+  EXPECT_LE(held->response.rays, 600L * static_cast<long>(samples.size()));
+  EXPECT_LT(std::abs(held->width.value - 0.023), 2 * held->width.sigma)
+      << held->width.value << " +- " << held->width.sigma;
+  EXPECT_GT(held->width.sigma, full->width.sigma);
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    EXPECT_LT(std::abs(held->residuals[i]), 3) << "sample " << i;
+}
+
 // Samples of a 1 x 3 mm rectangle made on a bench that differs from the one the samples state:
 // the values come from `made` at stage angles moved by N(0, jitter_deg) each, while the samples
 // carry `stated` and the nominal angles. 0.2 % noise, incidences 0, 30, 60.

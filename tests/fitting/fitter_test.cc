@@ -523,6 +523,9 @@ TEST(BadInput, ErrorsNameTheProblem) {
   FitOptions bad_eta;
   bad_eta.eta = 0.9;
   expect_error(data, bad_eta, "eta must lie in (1, 3)");
+  FitOptions no_rays;
+  no_rays.max_response_rays = 0;
+  expect_error(data, no_rays, "max_response_rays must be >= 1");
 }
 
 }  // namespace

@@ -21,8 +21,8 @@
 #                    glass (the demo's plan; also a GGX truth and 3 and 9 mm plates), frosted,
 #                    etched, antiglare (auto rectangle; also a GGX truth and a fixed 3 x 10 mm
 #                    rectangle); not in the default set: COVERAGE_RUNS (default 20) runs of 2-5
-#                    minutes per case (antiglare_3x10: a fit ran over 25 minutes unfinished, see
-#                    docs/measurement.md); COVERAGE_CASES picks some
+#                    minutes per case (antiglare_3x10: about 9, of which 4-5 the fit, its
+#                    samples held to the ray budget, docs/measurement.md); COVERAGE_CASES picks some
 #                                                  -> coverage_<case>.md
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass

@@ -82,7 +82,24 @@ kill_and_resume() {
   done
   wait $victim || { echo "the last resume failed:"; tail -5 "$log"; exit 1; }
 }
+# The kills' delays count from the run's creation: a kill before it leaves nothing to resume,
+# which is right, and the test would count no points (the CI's ASan build on a loaded host was
+# killed 1.3 s after its start with no run stored yet). Waits up to 30 s for the run's row.
+# Usage: wait_for_run LOG DB
+wait_for_run() {
+  local log=$1 db=$2
+  for _ in $(seq 300); do
+    # (-s first: sqlite3 must not create the file the run is about to)
+    [[ -s "$db" && $(q "$db" "select count(*) from runs" 2>/dev/null || echo 0) == 1 ]] && return 0
+    kill -0 $victim 2>/dev/null || { echo "the run ended before it was stored:"; cat "$log"; exit 1; }
+    sleep 0.1
+  done
+  echo "no run stored 30 s after its start:"
+  cat "$log"
+  exit 1
+}
 start "$work/kill.log" --db "$work/kill.sqlite" run "$work/plan.toml"
+wait_for_run "$work/kill.log" "$work/kill.sqlite"
 kill_and_resume "$work/kill.log" "$work/kill.sqlite" 1.3 4.4 3.9 4.8
 kills=$landed
 done_points=$(q "$work/kill.sqlite" "select count(*) from measurements")
@@ -166,6 +183,7 @@ height = 19
 PLAN
 ad=$work/adaptive.sqlite
 start "$work/adaptive.log" --db "$ad" run "$work/adaptive.toml"
+wait_for_run "$work/adaptive.log" "$ad"
 kill_and_resume "$work/adaptive.log" "$ad" 2.1 3.7 5.3
 akills=$landed
 [[ $(q "$ad" "select status from runs") == done ]]

@@ -91,7 +91,8 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
     if (f.response.capped > 0)
       std::cout << "    ray budget: " << f.response.capped
                 << " sample(s) modelled below the level the tolerance asked for (more than "
-                   "--max-response-rays); their quadrature error is in their sigma, at most "
+                   "--max-response-rays), corrected to the next level; the difference is in "
+                   "their sigma, at most "
                 << std::setprecision(3) << f.response.capped_largest << " of the sample's own\n";
     if (f.dark.sets > 0)
       std::cout << "    dark sets: " << f.dark.sets << " shared error(s) in the fit, over "
@@ -219,8 +220,8 @@ int main(int argc, char** argv) {
                  "fraction of its sigma")
       ->capture_default_str();
   app.add_option("--max-response-rays", base.max_response_rays,
-                 "the most rays one sample's model may hold; a finer level's difference joins "
-                 "the sample's sigma (its quadrature error)")
+                 "the most rays one sample's model may hold; past it the model is corrected to "
+                 "the next level and their difference joins the sample's sigma")
       ->capture_default_str();
   bool quiet = false;
   app.add_flag("--quiet", quiet, "no progress on standard error, however long the fit");

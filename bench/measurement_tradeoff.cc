@@ -2,14 +2,17 @@
 // simulated scene renders the rectangle of each geometry (rays traced per pixel, the apertures
 // where they change a value by 2e-4, with 64 directions per cone for antiglare, the lens's stray
 // light), noise as the demo's budget gives it
-// is drawn `repeats` times, and each draw is fitted three ways, four where the ray budget binds:
+// is drawn `repeats` times, and each draw is fitted three ways, five where the ray budget binds:
 //   point      the point model at the nominal pair (no response), a floor where BIC wants one;
 //   rectangle  through the rectangle's rays, apertures as points;
 //   full       the rectangle and the apertures (the fitter's default for a run with [bench]),
 //              each sample's model within FitOptions::max_response_rays ("N held": the samples
-//              of a draw, median, modelled below the level asked for, corrected and in sigma);
-//   unbudgeted the same without the budget (a fit holds every level asked for), run only for a
-//              case where some draw's full fit held a sample.
+//              of a draw, median, modelled below the level asked for, corrected to the next
+//              level, whose error, traced one level finer at the solution, is in sigma);
+//   next change  the same with the whole change to the next level in sigma instead
+//              (HeldError::kNextChange: no more rays, conservative), and
+//   unbudgeted the same without the budget (a fit holds every level asked for), both run only
+//              for a case where some draw's full fit held a sample.
 // Per case and way: the median fit time, the mean alpha bias (relative, and in the fits' own
 // sigmas), the share of fits whose 2-sigma interval covers the truth, and the mean chi2/dof.
 // The scene is not the whole instrument (no stages, camera or monitor): the noise is drawn from
@@ -44,6 +47,8 @@ struct Way {
   const char* name;
   bool response, apertures;
   long max_rays = fitting::FitOptions{}.max_response_rays;
+  fitting::HeldError held_error = fitting::HeldError::kTraced;
+  bool only_where_held = false;
 };
 
 struct Clean {
@@ -108,7 +113,9 @@ int main(int argc, char** argv) {
   const Way ways[] = {{"point", false, false},
                       {"rectangle", true, false},
                       {"full", true, true},
-                      {"unbudgeted", true, true, 1L << 40}};
+                      {"next change", true, true, fitting::FitOptions{}.max_response_rays,
+                       fitting::HeldError::kNextChange, true},
+                      {"unbudgeted", true, true, 1L << 40, fitting::HeldError::kTraced, true}};
   std::printf(
       "%d noise draws per case; alpha bias relative and in the fits' sigmas; coverage: "
       "share of 2-sigma intervals that hold the truth\n\n",
@@ -121,7 +128,7 @@ int main(int argc, char** argv) {
     const std::vector<Clean> clean = Render(c);
     bool held = false;  // some draw's full fit held a sample to the budget
     for (const Way& w : ways) {
-      if (w.max_rays > fitting::FitOptions{}.max_response_rays && !held) continue;
+      if (w.only_where_held && !held) continue;
       std::vector<int> held_per_draw;
       std::mt19937_64 rng(12345);
       std::normal_distribution<double> unit(0, 1);
@@ -148,6 +155,7 @@ int main(int argc, char** argv) {
         o.floor = fitting::Floor::kAuto;
         o.use_response = w.response;
         o.max_response_rays = w.max_rays;
+        o.held_error = w.held_error;
         const auto t0 = std::chrono::steady_clock::now();
         auto f = fitting::Fit(samples, o);
         seconds.push_back(

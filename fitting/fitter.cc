@@ -46,7 +46,22 @@ struct SampleModel {
   int mode = 0;  // 0: the point model; 1: the rectangle's rays; 2: rays and apertures
   std::vector<FixedGeometry> g;
   std::vector<double> w;
+  // A model held to the ray budget: its correction (in w) was taken at ln width0, and moves with
+  // the width as (width / width0)^slope (CorrectionAt).
+  double log_width0 = 0, slope = 0;
 };
+
+// The factor by which a held model's correction has moved since it was taken: a narrow lobe's
+// coarse cones are sharper than the finer ones, so the correction depends on the width, and a
+// correction held fixed would give the fit the coarse model's sensitivity to it (a width 3 of its
+// sigma off, with that sigma too small, on antiglare held to 600 rays).
+template <typename T>
+T CorrectionAt(const SampleModel& sm, const T& width) {
+  using std::exp;
+  using std::log;
+  if (sm.slope == 0) return T(1);
+  return exp(T(sm.slope) * (log(width) - T(sm.log_width0)));
+}
 
 // The sample stage's error common to a group of points (GeometryUse): per sample its group (-1:
 // none) and the fitted model's slope dS/d(sample angle) there, per group its read-back angle, and
@@ -105,7 +120,7 @@ T FixedEtaValue(const ModelSpec& model, const SampleModel& sm, const T& width) {
   for (std::size_t j = 0; j < sm.g.size(); ++j)
     if (sm.g[j].factor > 0)
       sum += T(sm.w[j] * sm.g[j].factor) * DTimesShadowing(model, sm.g[j], width);
-  return sum;
+  return sum * CorrectionAt(sm, width);
 }
 
 // Residual with eta free: the whole model on Jets, over the sample's pairs.
@@ -141,6 +156,7 @@ struct Residual {
     for (std::size_t j = 0; j < sm->g.size(); ++j)
       m += T(sm->w[j]) *
            MeasurementModel(model, Vec3<T>(sm->g[j].l), Vec3<T>(sm->g[j].v), width, k, eta);
+    m *= CorrectionAt(*sm, width);
     r[0] = (m + floor[0] * T(floor_unit) + T(slope) * delta[0] + T(dark) * z[0] - T(value)) *
            T(inv_sigma);
     return ResidualFinite(r[0]);
@@ -503,6 +519,14 @@ struct ResponseCache {
     // in; 1 and 0 otherwise.
     double correction = 1;
     double quadrature = 0;
+    // The levels streamed for each held step at the last decision (their indices; -1 where that
+    // step was not held) and the rectangle level the apertures' step stood on: where the error is
+    // traced one level finer than these (FitOptions::held_error).
+    int rectangle_streamed = -1, apertures_streamed = -1, apertures_on = 0;
+    double rectangle_change = 0, apertures_change = 0;  // each held step's, in value units
+    // d ln(correction) / d ln(width) at the decision's width (SampleModel::slope).
+    double slope = 0, log_width = 0;
+    bool Held() const { return rectangle_streamed >= 0 || apertures_streamed >= 0; }
   };
   std::vector<PerSample> of;
   explicit ResponseCache(std::size_t n) : of(n) {}
@@ -557,7 +581,20 @@ Result<double> StreamedValue(const ModelSpec& m, const Sample& s, std::size_t i,
 // their difference in value units (0 and ratio 1 where not held).
 struct Held {
   double ratio = 1, change = 0;
+  int streamed = -1;  // the index of the level streamed (-1: not held)
+  double slope = 0;   // d ln(ratio) / d ln(width)
 };
+
+// The step in ln(width) over which a held ratio's slope is taken (forward: one more streamed
+// evaluation of each level).
+constexpr double kSlopeStep = 1e-3;
+
+// d ln(finer / held) / d ln(width) from the two levels at width and at width e^kSlopeStep (at
+// k = 1); 0 where a value is not positive.
+double RatioSlope(double held, double finer, double held_up, double finer_up) {
+  if (!(held > 0 && finer > 0 && held_up > 0 && finer_up > 0)) return 0;
+  return (std::log(finer_up / held_up) - std::log(finer / held)) / kSlopeStep;
+}
 Held HeldAt(double held, double finer, double allowed) {
   const double change = std::abs(finer - held);
   if (change <= 0.5 * allowed) return {};
@@ -582,6 +619,16 @@ Result<int> Refine(const ModelSpec& m, ResponseCache::PerSample& c, bool apertur
       auto streamed = StreamedValue(m, s, i, *lv, width, eta);
       if (!streamed.ok()) return streamed.error();
       *held = HeldAt(value, k * *streamed, allowed);
+      if (held->change > 0) {
+        held->streamed = level + 1;
+        auto here = ResponseAt(c, apertures, level, s, i);
+        if (!here.ok()) return here.error();
+        const double up = width * std::exp(kSlopeStep);
+        auto streamed_up = StreamedValue(m, s, i, *lv, up, eta);
+        if (!streamed_up.ok()) return streamed_up.error();
+        held->slope =
+            RatioSlope(value / k, *streamed, ResponseValue(m, **here, up, eta), *streamed_up);
+      }
       return level;
     }
     auto next = ResponseAt(c, apertures, level + 1, s, i);
@@ -603,6 +650,7 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
   ResponseCache::PerSample& c = cache.of[i];
   c.quadrature = 0;
   c.correction = 1;
+  c.rectangle_streamed = c.apertures_streamed = -1;
   auto coarse = ResponseAt(c, false, 0, s, i);
   if (!coarse.ok()) return coarse.error();
   const Response& r0 = **coarse;
@@ -645,6 +693,14 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
     auto streamed = StreamedValue(m, s, i, *coarsest, width, eta);
     if (!streamed.ok()) return streamed.error();
     apertures_held = HeldAt(k * ResponseValue(m, rect, width, eta), k * *streamed, allowed);
+    if (apertures_held.change > 0) {
+      apertures_held.streamed = c.aperture_level;
+      const double up = width * std::exp(kSlopeStep);
+      auto streamed_up = StreamedValue(m, s, i, *coarsest, up, eta);
+      if (!streamed_up.ok()) return streamed_up.error();
+      apertures_held.slope = RatioSlope(ResponseValue(m, rect, width, eta), *streamed,
+                                        ResponseValue(m, rect, up, eta), *streamed_up);
+    }
   } else if (apertures_matter) {
     mode = 2;
     auto ap = Refine(m, c, true, c.aperture_level, s, i, width, k, eta, allowed, max_rays,
@@ -658,6 +714,13 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
   // without tracing yet finer rays.
   c.correction = rectangle_held.ratio * apertures_held.ratio;
   c.quadrature = std::hypot(rectangle_held.change, apertures_held.change);
+  c.rectangle_streamed = rectangle_held.streamed;
+  c.apertures_streamed = apertures_held.streamed;
+  c.rectangle_change = rectangle_held.change;
+  c.apertures_change = apertures_held.change;
+  c.slope = rectangle_held.slope + apertures_held.slope;  // the ratios multiply
+  c.log_width = std::log(width);
+  c.apertures_on = c.rectangle_level;
   if (c.quadrature > 0 && mode == 0) mode = 1;  // the correction is the rectangle's
   return mode;
 }
@@ -667,6 +730,10 @@ SampleModel BuildModel(const Sample& s, std::size_t i, const ResponseCache& cach
   SampleModel sm;
   sm.mode = mode;
   const ResponseCache::PerSample& c = cache.of[i];
+  if (c.Held()) {
+    sm.slope = c.slope;
+    sm.log_width0 = c.log_width;
+  }
   const Response* r = mode == 2   ? &*c.apertures[c.aperture_level]
                       : mode == 1 ? &*c.rectangle[c.rectangle_level]
                                   : nullptr;
@@ -876,11 +943,12 @@ std::vector<double> Predictions(const Problem& p, const FitOptions& o, const Fit
   for (std::size_t i = 0; i < p.samples.size(); ++i) {
     const SampleModel& sm = p.models[i];
     double m = 0;
-    if (o.fit_eta)
+    if (o.fit_eta) {
       for (std::size_t j = 0; j < sm.g.size(); ++j)
         m += sm.w[j] * MeasurementModel(o.model, sm.g[j].l, sm.g[j].v, out.width.value,
                                         out.scale.value, out.eta.value);
-    else
+      m *= CorrectionAt(sm, out.width.value);
+    } else
       m = out.scale.value * FixedEtaValue(o.model, sm, out.width.value);
     predicted[i] =
         m + out.floor.value + p.SlopeOf(i) * delta[p.DeltaOf(i)] + p.DarkOf(i) * dark_z[p.SetOf(i)];
@@ -1048,6 +1116,62 @@ Result<std::vector<int>> DecideModes(std::span<const Sample> samples, const FitO
   return modes;
 }
 
+// A held sample's next level is traced (TraceHeld) only up to this many times the budget: past
+// it, tracing would cost far more than the fit (a 6 x 16 cone pair over 1 178 pixels is 11 M).
+constexpr long kTraceRaysPerBudget = 64;
+
+// Where the budget held a model, its corrected value's own error: the change from each streamed
+// level to the next finer one, both streamed once at (width, k, eta). The correction made the
+// model the streamed level's value, whose error that next change measures; the change from the
+// held level, which sigma took during the rounds, is the error of a model left uncorrected (on
+// antiglare under 3 x 10 mm up to 38 sigma, where the next change is at most 0.5). A step
+// streamed at its finest level has no error left: an unbudgeted fit stops there too. A step whose
+// next level is past kTraceRaysPerBudget times the budget keeps its change. Sets each held
+// sample's quadrature; returns how many samples had every held step traced.
+Result<int> TraceHeld(std::span<const Sample> samples, const FitOptions& o, ResponseCache& cache,
+                      double width, double k, double eta) {
+  const long limit = o.max_response_rays > std::numeric_limits<long>::max() / kTraceRaysPerBudget
+                         ? std::numeric_limits<long>::max()
+                         : kTraceRaysPerBudget * o.max_response_rays;
+  int traced = 0;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    ResponseCache::PerSample& c = cache.of[i];
+    if (!c.Held()) continue;
+    const Sample& s = samples[i];
+    bool whole = true;
+    // The error of a step streamed at `at`: its change to `finer`, or `change` where untraced.
+    auto error = [&](const std::optional<ResponseLevel>& at,
+                     const std::optional<ResponseLevel>& finer, double change) -> Result<double> {
+      if (!finer) return 0.0;
+      if (MaxRaysAtLevel(*s.response->setup, *finer) > limit) {
+        whole = false;
+        return change;
+      }
+      auto a = StreamedValue(o.model, s, i, *at, width, eta);
+      if (!a.ok()) return a.error();
+      auto b = StreamedValue(o.model, s, i, *finer, width, eta);
+      if (!b.ok()) return b.error();
+      return k * std::abs(*b - *a);
+    };
+    double rect = 0, ap = 0;
+    if (c.rectangle_streamed >= 0) {
+      auto e = error(RectangleLevel(c.rectangle_streamed), RectangleLevel(c.rectangle_streamed + 1),
+                     c.rectangle_change);
+      if (!e.ok()) return e.error();
+      rect = *e;
+    }
+    if (c.apertures_streamed >= 0) {
+      auto e = error(ApertureLevel(c.apertures_streamed, c.apertures_on),
+                     ApertureLevel(c.apertures_streamed + 1, c.apertures_on), c.apertures_change);
+      if (!e.ok()) return e.error();
+      ap = *e;
+    }
+    c.quadrature = std::hypot(rect, ap);
+    traced += whole;
+  }
+  return traced;
+}
+
 // What each sample's model was built from: its mode and its responses' levels. The decision has
 // settled when a new one changes none of them (a level refined at the same mode counts: the
 // model built at the start's width would otherwise stay on the coarser rays).
@@ -1069,7 +1193,7 @@ std::pair<int, double> WithQuadrature(std::span<const Sample> samples, const Res
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const double q = cache.of[i].quadrature;
     out[i].sigma = std::hypot(samples[i].sigma, q);
-    if (q <= 0) continue;
+    if (!cache.of[i].Held()) continue;
     ++capped;
     largest = std::max(largest, q / samples[i].sigma);
   }
@@ -1164,14 +1288,18 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
   std::vector<double> sigmas;
   for (const Sample& s : samples) sigmas.push_back(s.sigma);
   auto decided = Decided(*modes, cache);
-  // The held samples' corrections the models were built with: a round whose corrections move a
-  // prediction by more than half the tolerance has not settled either.
+  // The held samples' corrections the models were built with (each with its slope and the width
+  // it was taken at): a round whose corrections move a prediction by more than half the tolerance
+  // from what the models carried them to has not settled either.
+  struct Built {
+    double correction, slope, log_width;
+  };
   auto corrections = [&cache] {
-    std::vector<double> c;
-    for (const auto& one : cache.of) c.push_back(one.correction);
+    std::vector<Built> c;
+    for (const auto& one : cache.of) c.push_back({one.correction, one.slope, one.log_width});
     return c;
   };
-  std::vector<double> built_with = corrections();
+  std::vector<Built> built_with = corrections();
   Problem p{fitted,         build(*modes, o.eta), o.floor == Floor::kFit,
             Median(sigmas), o.stage.get(),        &dark};
   Tell(o, DescribeModels(*modes, p.models, capped.first));
@@ -1214,11 +1342,14 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
     auto next = DecideModes(samples, o, cache, w, k, eta);
     if (!next.ok()) return next.error();
     auto now = Decided(*next, cache);
-    const std::vector<double> corrected = corrections();
+    const std::vector<Built> corrected = corrections();
     bool moved = false;
-    for (std::size_t i = 0; i < samples.size(); ++i)
-      moved = moved || std::abs(corrected[i] - built_with[i]) * std::abs(samples[i].value) >
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+      const Built& b = built_with[i];
+      const double carried = b.correction * std::exp(b.slope * (std::log(w) - b.log_width));
+      moved = moved || std::abs(corrected[i].correction - carried) * std::abs(samples[i].value) >
                            0.5 * o.response_tolerance * samples[i].sigma;
+    }
     if (now == decided && !moved) break;
     decided = std::move(now);
     built_with = corrected;
@@ -1235,6 +1366,32 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
       return out;
     }
     winner = std::move(f);
+  }
+  // The held samples' error traced one level finer at the solution, and the solve again with
+  // it: their models stay as decided, corrected to the streamed level.
+  if (o.held_error == HeldError::kTraced && capped.first > 0) {
+    const double w = std::exp(winner->x[0]), k = std::exp(winner->x[1]);
+    const double eta = o.fit_eta ? EtaFromRaw(winner->x[2]) : o.eta;
+    Tell(o, "tracing the next level of the " + std::to_string(capped.first) +
+                " samples held to the ray budget, at the solution");
+    auto traced = TraceHeld(samples, o, cache, w, k, eta);
+    if (!traced.ok()) return traced.error();
+    out.response.capped_untraced_largest = capped.second;
+    out.response.traced = *traced;
+    capped = WithQuadrature(samples, cache, fitted);
+    auto f = SolveFrom(p, o, w, k, eta, winner->x[3] * p.floor_unit);
+    if (!f->converged) {
+      out.status = FitStatus::kFailed;
+      out.message = "the fit with the held samples' traced error did not converge: " + f->message;
+      return out;
+    }
+    winner = std::move(f);
+    std::ostringstream t;
+    t << "the held samples' error traced (" << *traced << " of " << capped.first
+      << "): the largest is " << std::setprecision(3) << capped.second
+      << " of the sample's own sigma, where the change to the next level was "
+      << out.response.capped_untraced_largest;
+    Tell(o, t.str());
   }
   const LocalFit& best = *winner;
 

@@ -88,7 +88,16 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
                 << " with the apertures too), " << f.response.rays
                 << " model evaluations per pass, " << f.response.rounds << " solve(s); "
                 << std::setprecision(3) << f.seconds << " s\n";
-    if (f.response.capped > 0)
+    if (f.response.capped > 0 && f.response.traced > 0)
+      std::cout << "    ray budget: " << f.response.capped
+                << " sample(s) modelled below the level the tolerance asked for (more than "
+                   "--max-response-rays), corrected to the next level; its error, traced one "
+                   "level finer for "
+                << f.response.traced << " of them, is in their sigma, at most "
+                << std::setprecision(3) << f.response.capped_largest
+                << " of the sample's own (the change to the next level was "
+                << f.response.capped_untraced_largest << ")\n";
+    else if (f.response.capped > 0)
       std::cout << "    ray budget: " << f.response.capped
                 << " sample(s) modelled below the level the tolerance asked for (more than "
                    "--max-response-rays), corrected to the next level; the difference is in "
@@ -221,7 +230,13 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-response-rays", base.max_response_rays,
                  "the most rays one sample's model may hold; past it the model is corrected to "
-                 "the next level and their difference joins the sample's sigma")
+                 "the next level, whose error joins the sample's sigma (--held-error)")
+      ->capture_default_str();
+  std::string held_arg = "traced";
+  app.add_option("--held-error", held_arg,
+                 "a held sample's error: traced (one level finer, once at the solution) or next "
+                 "(the whole change to the next level: no more rays, conservative)")
+      ->check(CLI::IsMember({"traced", "next"}))
       ->capture_default_str();
   bool quiet = false;
   app.add_flag("--quiet", quiet, "no progress on standard error, however long the fit");
@@ -244,6 +259,7 @@ int main(int argc, char** argv) {
   else if (loss_arg != "none")
     return fail_input("--loss: '" + loss_arg + "' is not none, huber or cauchy");
   if (start != 0) base.initial_width = start;
+  base.held_error = held_arg == "next" ? HeldError::kNextChange : HeldError::kTraced;
   if (floor_arg == "auto")
     base.floor = Floor::kAuto;
   else if (floor_arg == "on")

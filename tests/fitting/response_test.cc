@@ -401,7 +401,7 @@ TEST(ResponseTest, ALevelsStreamedMeanIsItsRaysMeanAndItsBoundHoldsThem) {
 // budget below what the tolerance asks for, the fit models the held samples at a coarser level
 // whose error is real (more than a sample's own sigma somewhere) and is carried in their sigma,
 // so alpha still covers the truth, with a wider sigma than the fit that had the rays.
-TEST(ResponseTest, AModelHeldToTheRayBudgetCarriesItsQuadratureErrorInSigma) {
+TEST(ResponseTest, AModelHeldToTheRayBudgetIsCorrectedAndCarriesItsErrorInSigma) {
   const auto truth = sim::MicrofacetTruth("beckmann", 0.023, 1.51);
   auto setup = std::make_shared<fitting::ResponseSetup>(CentredSetup(1, 3, 6));
   std::vector<fitting::Sample> samples;
@@ -428,17 +428,37 @@ TEST(ResponseTest, AModelHeldToTheRayBudgetCarriesItsQuadratureErrorInSigma) {
   EXPECT_LT(std::abs(full->width.value - 0.023), 2 * full->width.sigma) << full->width.value;
 
   o.max_response_rays = 600;  // a coarse rectangle's rays with few cone directions
+  o.held_error = fitting::HeldError::kNextChange;
   auto held = fitting::Fit(samples, o);
   ASSERT_TRUE(held.ok()) << held.error().message;
   ASSERT_NE(held->status, fitting::FitStatus::kFailed) << held->message;
   EXPECT_GT(held->response.capped, static_cast<int>(samples.size()) / 2);
   EXPECT_GT(held->response.capped_largest, 1.0);  // the coarse model's error is real
+  EXPECT_EQ(held->response.traced, 0);
   EXPECT_LE(held->response.rays, 600L * static_cast<long>(samples.size()));
   EXPECT_LT(std::abs(held->width.value - 0.023), 2 * held->width.sigma)
       << held->width.value << " +- " << held->width.sigma;
   EXPECT_GT(held->width.sigma, full->width.sigma);
   for (std::size_t i = 0; i < samples.size(); ++i)
     EXPECT_LT(std::abs(held->residuals[i]), 3) << "sample " << i;
+
+  // Traced one level finer at the solution: the corrected model's own error, smaller than the
+  // change that brought it there, and still as large as the model's distance from the values
+  // (made at the finest level): every residual stays within 3 of the tighter sigma. The model
+  // carries its correction's slope in the width: held fixed, the correction gave the fit the
+  // coarse cones' sharper lobe, and alpha came out 3.3 of a sigma 20 % too small off.
+  o.held_error = fitting::HeldError::kTraced;
+  auto traced = fitting::Fit(samples, o);
+  ASSERT_TRUE(traced.ok()) << traced.error().message;
+  ASSERT_NE(traced->status, fitting::FitStatus::kFailed) << traced->message;
+  EXPECT_EQ(traced->response.capped, held->response.capped);
+  EXPECT_GT(traced->response.traced, 0);
+  EXPECT_LT(traced->response.capped_largest, 0.5 * traced->response.capped_untraced_largest);
+  EXPECT_LT(traced->width.sigma, held->width.sigma);
+  EXPECT_LT(std::abs(traced->width.value - 0.023), 2 * traced->width.sigma)
+      << traced->width.value << " +- " << traced->width.sigma;
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    EXPECT_LT(std::abs(traced->residuals[i]), 3) << "sample " << i;
 }
 
 // Samples of a 1 x 3 mm rectangle made on a bench that differs from the one the samples state:

@@ -14,6 +14,8 @@
 #              the same family (gonio-fit --model)
 #   SIM_THICKNESS  the plate's thickness in mm, for the simulated sample and the catalogue's
 #              specimens alike (the sphere centre then lies off the rough face unless 6)
+#   SIM_SEED   the simulator's noise seed instead of config/sim.toml's 1 (a fresh bench repeats
+#              its first run's noise under one seed: continue a stopped series under another)
 #   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later), and
 #              gonio-sim's truth.csv (what each frame saw: bench/coverage/truth_angles.py,
 #              value_check.py, lamp_check.py, norm_check.py)
@@ -34,11 +36,15 @@ sim_config=$work/sim.toml samples=$work/samples.toml
 thickness="s/^thickness_mm = [0-9.]*/thickness_mm = ${SIM_THICKNESS:-6.0}/"
 alpha=""
 [[ -n "${SIM_ALPHA:-}" ]] && alpha="s/^alpha = [0-9.]*/alpha = $SIM_ALPHA/"
+seed=""
+[[ -z "${SIM_SEED:-}" ]] || [[ "$SIM_SEED" =~ ^[0-9]+$ ]] ||
+  { echo "instrument_coverage: SIM_SEED must be a non-negative integer, not '$SIM_SEED'" >&2; exit 2; }
+[[ -n "${SIM_SEED:-}" ]] && seed="0,/^seed = [0-9]*/s//seed = $SIM_SEED/"
 family=${SIM_MODEL:-beckmann}
 [[ "$family" == beckmann || "$family" == ggx ]] ||
   { echo "instrument_coverage: SIM_MODEL must be beckmann or ggx, not '$family'" >&2; exit 2; }
 sed -e "$thickness" -e "s/^model = \"[a-z]*\"/model = \"$family\"/" ${alpha:+-e "$alpha"} \
-  config/sim.toml > "$sim_config"
+  ${seed:+-e "$seed"} config/sim.toml > "$sim_config"
 sed -e "$thickness" config/samples.toml > "$samples"
 source tests/support/gonio_sim.sh
 trap 'stop_gonio_sim; rm -rf "$work"' EXIT
@@ -58,7 +64,7 @@ echo "# alpha's coverage through the whole simulated instrument"
 echo
 echo "$runs runs of \`$plan\` on gonio-sim at x$speed (config/sim.toml, $family alpha = $truth," \
   "a ${SIM_THICKNESS:-6.0} mm plate, the CCD $cool_label), fitted with \`gonio-fit --model $family\`. Command:" \
-  "\`${COVERAGE_COOL:+COVERAGE_COOL=$COVERAGE_COOL }${SIM_MODEL:+SIM_MODEL=$SIM_MODEL }${SIM_ALPHA:+SIM_ALPHA=$SIM_ALPHA }${SIM_THICKNESS:+SIM_THICKNESS=$SIM_THICKNESS }bench/instrument_coverage.sh $build $runs $plan $speed\`."
+  "\`${COVERAGE_COOL:+COVERAGE_COOL=$COVERAGE_COOL }${SIM_MODEL:+SIM_MODEL=$SIM_MODEL }${SIM_ALPHA:+SIM_ALPHA=$SIM_ALPHA }${SIM_THICKNESS:+SIM_THICKNESS=$SIM_THICKNESS }${SIM_SEED:+SIM_SEED=$SIM_SEED }bench/instrument_coverage.sh $build $runs $plan $speed\`."
 echo
 for i in $(seq "$runs"); do
   "$build/daemon/gonio-acquire" -c "$work/instrument.toml" --samples "$samples" \

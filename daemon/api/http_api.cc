@@ -587,33 +587,33 @@ void ApiServer::RouteFits() {
                               {"value", p.value}});
             Reply(res, 200, {{"run", *id}, {"fit", fit}, {"points", list}});
           });
-  srv.Post(R"(/api/v1/runs/(\d+)/fit)",
-           [this](const httplib::Request& req, httplib::Response& res) {
-             auto body = Body(req, res);
-             if (!body) return;
-             std::vector<std::string> models = {"beckmann", "ggx"};
-             if (body->contains("models")) {
-               if (!(*body)["models"].is_array())
-                 return ReplyError(res, 400, "\"models\" must be a list of model names");
-               models.clear();
-               for (const json& m : (*body)["models"]) {
-                 if (!m.is_string()) return ReplyError(res, 400, "\"models\" must hold strings");
-                 models.push_back(m.get<std::string>());
-               }
-             }
-             const auto id = IdOf(req, res, "run");
-             if (!id) return;
-             auto fits = FitRun(*reader_, *id, models);
-             if (!fits.ok()) return ReplyError(res, fits.error());
-             json list = json::array();
-             for (const RunFit& f : *fits) {
-               json j = fitting::ToJson(f.summary);
-               j["id"] = f.stored_id;
-               j["samples"] = f.samples;
-               list.push_back(j);
-             }
-             Reply(res, 200, {{"fits", list}});
-           });
+  srv.Post(
+      R"(/api/v1/runs/(\d+)/fit)", [this](const httplib::Request& req, httplib::Response& res) {
+        auto body = Body(req, res);
+        if (!body) return;
+        std::vector<std::string> models = {"beckmann", "ggx"};
+        if (body->contains("models")) {
+          if (!(*body)["models"].is_array())
+            return ReplyError(res, 400, "\"models\" must be a list of model names");
+          models.clear();
+          for (const json& m : (*body)["models"]) {
+            if (!m.is_string()) return ReplyError(res, 400, "\"models\" must hold strings");
+            models.push_back(m.get<std::string>());
+          }
+        }
+        const auto id = IdOf(req, res, "run");
+        if (!id) return;
+        auto fits = FitRun(*reader_, *id, models, FitProgressEvents(controller_->events(), *id));
+        if (!fits.ok()) return ReplyError(res, fits.error());
+        json list = json::array();
+        for (const RunFit& f : *fits) {
+          json j = fitting::ToJson(f.summary);
+          j["id"] = f.stored_id;
+          j["samples"] = f.samples;
+          list.push_back(j);
+        }
+        Reply(res, 200, {{"fits", list}});
+      });
 }
 
 // The live event stream.

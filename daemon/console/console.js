@@ -217,6 +217,13 @@ function listen() {
     fetchRun();
     fetchFrame();
   });
+  // A long fit (a narrow lobe under a large rectangle: minutes) says what it is doing.
+  es.addEventListener('fit_progress', (ev) => {
+    let d = null;
+    try { d = JSON.parse(ev.data); } catch (e) { return; }
+    if (d && typeof d.message === 'string' && typeof d.seconds === 'number')
+      say('fitting run ' + d.run + ', ' + Math.round(d.seconds) + ' s: ' + d.message, false);
+  });
   for (const type of ['state', 'job', 'queue', 'suspend', 'fit', 'log'])
     es.addEventListener(type, () => refreshSoon(type !== 'log'));
   es.onerror = () => { /* EventSource reconnects by itself; the poll covers the gap */ };

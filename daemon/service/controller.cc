@@ -764,7 +764,7 @@ Status Controller::CoolDown(const CoolerWait& w) {
 }
 
 void Controller::FitAfterRun(const Job& job) {
-  auto fits = FitRun(db_, *job.run, job.fit);
+  auto fits = FitRun(db_, *job.run, job.fit, FitProgressEvents(events_, *job.run));
   if (!fits.ok()) {
     (void)db_.AddEvent(*job.run, "fit_failed", fits.error().message);
     events_.Publish("fit", {{"run", *job.run}, {"error", fits.error().message}});

@@ -16,7 +16,7 @@ namespace gonio::daemon {
 
 struct Event {
   std::int64_t seq = 0;
-  std::string type;     // "state", "job", "progress", "suspend", "log"
+  std::string type;     // "state", "job", "progress", "suspend", "fit", "fit_progress", "log"
   nlohmann::json data;  // the event's body
 };
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <optional>
 
 #include "fitting/protocol.h"
 #include "fitting/sample.h"
@@ -54,8 +55,25 @@ Result<std::vector<fitting::Sample>> RunSamples(acquisition::Storage& db, std::i
 
 }  // namespace
 
+std::function<void(const std::string&)> FitProgressEvents(EventLog& events, std::int64_t run,
+                                                          std::chrono::milliseconds every) {
+  using Clock = std::chrono::steady_clock;
+  const Clock::time_point start = Clock::now();
+  auto last = std::make_shared<std::optional<Clock::time_point>>();
+  return [&events, run, every, start, last](const std::string& message) {
+    const Clock::time_point now = Clock::now();
+    if (*last && now - **last < every) return;
+    *last = now;
+    events.Publish("fit_progress",
+                   {{"run", run},
+                    {"message", message},
+                    {"seconds", std::chrono::duration<double>(now - start).count()}});
+  };
+}
+
 Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
-                                   const std::vector<std::string>& models) {
+                                   const std::vector<std::string>& models,
+                                   std::function<void(const std::string&)> progress) {
   auto specs = fitting::ParseModels(models);
   if (!specs.ok()) return specs.error();
   auto info = db.GetRun(run);
@@ -68,6 +86,7 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
   po.base.eta = info->specimen_eta;
   // A floor only if the data need it; none where each point's background was measured.
   po.base.floor = fitting::Floor::kAuto;
+  po.base.progress = std::move(progress);
   if (Status v = fitting::ValidateSamples(samples, po.base.NumParams(),
                                           "run " + std::to_string(run) + " point");
       !v.ok())

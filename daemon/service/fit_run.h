@@ -6,10 +6,13 @@
 // summary is stored in the run's fit_results and returned.
 #pragma once
 
+#include <chrono>
+#include <functional>
 #include <string>
 #include <vector>
 
 #include "acquisition/storage.h"
+#include "daemon/service/events.h"
 #include "fitting/fitter.h"
 
 namespace gonio::daemon {
@@ -23,9 +26,19 @@ struct RunFit {
 
 // Models by name (beckmann, ggx, phong, sun2008; kInvalidArgument naming an unknown one), the
 // specimen's eta fixed. kNotFound for an unknown run; kInvalidArgument when the run has too few
-// samples to fit.
+// samples to fit. `progress`, when given, is told what the fit is doing (fitting::FitOptions::
+// progress, labelled with the model and the samples' part), from the calling thread.
 Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
-                                   const std::vector<std::string>& models);
+                                   const std::vector<std::string>& models,
+                                   std::function<void(const std::string&)> progress = {});
+
+// A FitRun progress that publishes "fit_progress" events ({run, message, seconds}: what the fit
+// is doing and how long it has run) on `events`: the first message, then at most one each
+// `every`, so that a long fit (a narrow lobe under a large rectangle: minutes) shows it is alive
+// without flooding the ring.
+std::function<void(const std::string&)> FitProgressEvents(
+    EventLog& events, std::int64_t run,
+    std::chrono::milliseconds every = std::chrono::milliseconds(1000));
 
 struct PointPrediction {
   int index = 0;  // the run's point

@@ -7,6 +7,7 @@
 
 #include <sqlite3.h>
 #include <unistd.h>
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 
@@ -61,9 +62,19 @@ TEST(FitRun, AReflectionRunIsFittedWithTheBrdfAndSun2008IsRefusedStoringNothing)
     auto stored = (*db)->FitResults(*run);
     ASSERT_TRUE(stored.ok());
     EXPECT_TRUE(stored->empty());
-    auto fits = FitRun(**db, *run, {"beckmann", "ggx"});
+    std::vector<std::string> told;
+    auto fits = FitRun(**db, *run, {"beckmann", "ggx"},
+                       [&told](const std::string& m) { told.push_back(m); });
     ASSERT_TRUE(fits.ok()) << fits.error().message;
     ASSERT_EQ(fits->size(), 2u);
+    // The progress names each model and each solve's end.
+    for (const char* model : {"beckmann", "ggx"})
+      EXPECT_TRUE(std::any_of(told.begin(), told.end(),
+                              [model](const std::string& m) {
+                                return m.rfind(model, 0) == 0 &&
+                                       m.find("solved") != std::string::npos;
+                              }))
+          << model << ": " << (told.empty() ? "nothing told" : told.back());
     EXPECT_EQ((*fits)[0].summary.status, fitting::FitStatus::kConverged);
     EXPECT_NEAR((*fits)[0].summary.width.value, 0.344, 1e-4);
     EXPECT_NEAR((*fits)[0].summary.scale.value, 1000, 0.1);
@@ -72,6 +83,22 @@ TEST(FitRun, AReflectionRunIsFittedWithTheBrdfAndSun2008IsRefusedStoringNothing)
     EXPECT_EQ(stored->size(), 2u);
   }
   for (const char* ext : {"", "-wal", "-shm"}) std::filesystem::remove(path + ext);
+}
+
+// A fit's progress as goniod's events: the first message, then at most one each interval.
+TEST(FitRun, ProgressEventsAreThrottledAndNameTheRun) {
+  EventLog events;
+  auto slow = FitProgressEvents(events, 7, std::chrono::hours(1));
+  for (const char* m : {"first", "second", "third"}) slow(m);
+  auto all = events.After(0, std::chrono::milliseconds(0));
+  ASSERT_EQ(all.size(), 1u);
+  EXPECT_EQ(all[0].type, "fit_progress");
+  EXPECT_EQ(all[0].data.at("run"), 7);
+  EXPECT_EQ(all[0].data.at("message"), "first");
+  EXPECT_GE(all[0].data.at("seconds").get<double>(), 0);
+  auto each = FitProgressEvents(events, 8, std::chrono::milliseconds(0));
+  for (const char* m : {"a", "b", "c"}) each(m);
+  EXPECT_EQ(events.After(all[0].seq, std::chrono::milliseconds(0)).size(), 3u);
 }
 
 // A run stored with its instrument response is fitted through it; the same run with the stored

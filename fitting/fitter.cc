@@ -708,10 +708,10 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
     if (!ap.ok()) return ap.error();
     c.aperture_level = *ap;
   }
-  // Each held step's ratio corrects the model to the finer value at this estimate (the rounds
-  // take it again as the fit moves); each change, the error of a model that would not be
-  // corrected, stays in sigma: the corrected one's error is the finer level's, not known
-  // without tracing yet finer rays.
+  // Each held step's ratio corrects the model to the finer value at this estimate, with its slope
+  // in the width (the rounds take both again as the fit moves); each change, the error of a model
+  // that would not be corrected, stays in sigma until the fit has settled, when TraceHeld
+  // replaces it with the corrected model's own error (FitOptions::held_error).
   c.correction = rectangle_held.ratio * apertures_held.ratio;
   c.quadrature = std::hypot(rectangle_held.change, apertures_held.change);
   c.rectangle_streamed = rectangle_held.streamed;

@@ -76,10 +76,11 @@ struct FitOptions {
   double response_tolerance = 0.1;
   // The most rays one sample's model may hold (memory, and the time of every evaluation). Where
   // the refinement asks for a finer level than that, the model stays at the finest level within
-  // it, the next level is evaluated once (without holding its rays), and their difference, the
-  // quadrature's error, joins the sample's sigma in quadrature (ResponseUse::capped). A narrow
-  // lobe under a large rectangle with its apertures (antiglare under 3 x 10 mm: 1 178 pixels
-  // times 144 cone pairs or more) is where it binds; the demo's samples use a few thousand.
+  // it, the next level is evaluated (streamed, its rays never held), the model is corrected to it
+  // with the correction's slope in the width, and its error (held_error) joins the sample's sigma
+  // in quadrature (ResponseUse::capped). A narrow lobe under a large rectangle with its
+  // apertures (antiglare under 3 x 10 mm: 1 178 pixels times 144 cone pairs or more) is where it
+  // binds; the demo's samples use a few thousand.
   long max_response_rays = 65536;
   // A held sample's error once the fit has settled: kTraced streams one level finer than the one
   // its model is corrected to, at the solution (a held step at its finest level has none left),

@@ -15,14 +15,17 @@
 #   rtu_polling      stage polling on a 115200-baud RTU line: sweep time and line load per poll
 #                    interval                      -> rtu_polling.md
 #   measurement_tradeoff  fit time against alpha bias and coverage: point model, rectangle,
-#                    rectangle + apertures, on Figure 12's samples -> measurement_tradeoff.md
+#                    rectangle + apertures, on Figure 12's samples; where the ray budget holds
+#                    a sample also with the held error's conservative way and without the budget
+#                                                  -> measurement_tradeoff.md
 #   instrument_coverage.sh  alpha's 2-sigma coverage, bias and pull spread through the whole
 #                    simulated instrument (gonio-sim, drivers, engine, SQLite, gonio-fit): ground
 #                    glass (the demo's plan; also a GGX truth and 3 and 9 mm plates), frosted,
 #                    etched, antiglare (auto rectangle; also a GGX truth and a fixed 3 x 10 mm
 #                    rectangle); not in the default set: COVERAGE_RUNS (default 20) runs of 2-5
-#                    minutes per case (antiglare_3x10: about 9, of which 4-5 the fit, its
-#                    samples held to the ray budget, docs/measurement.md); COVERAGE_CASES picks some
+#                    minutes per case (antiglare_3x10: about 11, of which 6-7 the fit, its
+#                    samples held to the ray budget, docs/measurement.md); COVERAGE_CASES picks
+#                    some, SIM_SEED continues a stopped case with fresh noise
 #                                                  -> coverage_<case>.md
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass

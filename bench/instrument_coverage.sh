@@ -14,8 +14,9 @@
 #              the same family (gonio-fit --model)
 #   SIM_THICKNESS  the plate's thickness in mm, for the simulated sample and the catalogue's
 #              specimens alike (the sphere centre then lies off the rough face unless 6)
-#   SIM_SEED   the simulator's noise seed instead of config/sim.toml's 1 (a fresh bench repeats
-#              its first run's noise under one seed: continue a stopped series under another)
+#   SIM_SEED   the simulator's noise seed instead of config/sim.toml's 1: continue a stopped
+#              series under another, since a fresh bench under the same seed draws from the same
+#              sequence (frames that fall alike then repeat their noise)
 #   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later), and
 #              gonio-sim's truth.csv (what each frame saw: bench/coverage/truth_angles.py,
 #              value_check.py, lamp_check.py, norm_check.py)

@@ -524,6 +524,9 @@ struct ResponseCache {
     // traced one level finer than these (FitOptions::held_error).
     int rectangle_streamed = -1, apertures_streamed = -1, apertures_on = 0;
     double rectangle_change = 0, apertures_change = 0;  // each held step's, in value units
+    // Each held step's streamed value at k = 1 and the decision's width (TraceHeld reuses them
+    // when it traces at that width).
+    double rectangle_streamed_value = 0, apertures_streamed_value = 0;
     // d ln(correction) / d ln(width) at the decision's width (SampleModel::slope).
     double slope = 0, log_width = 0;
     bool Held() const { return rectangle_streamed >= 0 || apertures_streamed >= 0; }
@@ -581,8 +584,9 @@ Result<double> StreamedValue(const ModelSpec& m, const Sample& s, std::size_t i,
 // their difference in value units (0 and ratio 1 where not held).
 struct Held {
   double ratio = 1, change = 0;
-  int streamed = -1;  // the index of the level streamed (-1: not held)
-  double slope = 0;   // d ln(ratio) / d ln(width)
+  int streamed = -1;          // the index of the level streamed (-1: not held)
+  double slope = 0;           // d ln(ratio) / d ln(width)
+  double streamed_value = 0;  // at k = 1
 };
 
 // The step in ln(width) over which a held ratio's slope is taken (forward: one more streamed
@@ -621,6 +625,7 @@ Result<int> Refine(const ModelSpec& m, ResponseCache::PerSample& c, bool apertur
       *held = HeldAt(value, k * *streamed, allowed);
       if (held->change > 0) {
         held->streamed = level + 1;
+        held->streamed_value = *streamed;
         auto here = ResponseAt(c, apertures, level, s, i);
         if (!here.ok()) return here.error();
         const double up = width * std::exp(kSlopeStep);
@@ -695,6 +700,7 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
     apertures_held = HeldAt(k * ResponseValue(m, rect, width, eta), k * *streamed, allowed);
     if (apertures_held.change > 0) {
       apertures_held.streamed = c.aperture_level;
+      apertures_held.streamed_value = *streamed;
       const double up = width * std::exp(kSlopeStep);
       auto streamed_up = StreamedValue(m, s, i, *coarsest, up, eta);
       if (!streamed_up.ok()) return streamed_up.error();
@@ -718,6 +724,8 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
   c.apertures_streamed = apertures_held.streamed;
   c.rectangle_change = rectangle_held.change;
   c.apertures_change = apertures_held.change;
+  c.rectangle_streamed_value = rectangle_held.streamed_value;
+  c.apertures_streamed_value = apertures_held.streamed_value;
   c.slope = rectangle_held.slope + apertures_held.slope;  // the ratios multiply
   c.log_width = std::log(width);
   c.apertures_on = c.rectangle_level;
@@ -1139,30 +1147,38 @@ Result<int> TraceHeld(std::span<const Sample> samples, const FitOptions& o, Resp
     if (!c.Held()) continue;
     const Sample& s = samples[i];
     bool whole = true;
-    // The error of a step streamed at `at`: its change to `finer`, or `change` where untraced.
-    auto error = [&](const std::optional<ResponseLevel>& at,
+    // The last decision's streamed value where it was taken at this width (the rounds settled
+    // there), else streamed again.
+    const bool here = std::log(width) == c.log_width;
+    // The error of a step streamed at `at` (`value` there at k = 1 when `here`): its change to
+    // `finer`, or `change` where untraced.
+    auto error = [&](const std::optional<ResponseLevel>& at, double value,
                      const std::optional<ResponseLevel>& finer, double change) -> Result<double> {
       if (!finer) return 0.0;
       if (MaxRaysAtLevel(*s.response->setup, *finer) > limit) {
         whole = false;
         return change;
       }
-      auto a = StreamedValue(o.model, s, i, *at, width, eta);
-      if (!a.ok()) return a.error();
+      if (!here) {
+        auto a = StreamedValue(o.model, s, i, *at, width, eta);
+        if (!a.ok()) return a.error();
+        value = *a;
+      }
       auto b = StreamedValue(o.model, s, i, *finer, width, eta);
       if (!b.ok()) return b.error();
-      return k * std::abs(*b - *a);
+      return k * std::abs(*b - value);
     };
     double rect = 0, ap = 0;
     if (c.rectangle_streamed >= 0) {
-      auto e = error(RectangleLevel(c.rectangle_streamed), RectangleLevel(c.rectangle_streamed + 1),
-                     c.rectangle_change);
+      auto e = error(RectangleLevel(c.rectangle_streamed), c.rectangle_streamed_value,
+                     RectangleLevel(c.rectangle_streamed + 1), c.rectangle_change);
       if (!e.ok()) return e.error();
       rect = *e;
     }
     if (c.apertures_streamed >= 0) {
-      auto e = error(ApertureLevel(c.apertures_streamed, c.apertures_on),
-                     ApertureLevel(c.apertures_streamed + 1, c.apertures_on), c.apertures_change);
+      auto e =
+          error(ApertureLevel(c.apertures_streamed, c.apertures_on), c.apertures_streamed_value,
+                ApertureLevel(c.apertures_streamed + 1, c.apertures_on), c.apertures_change);
       if (!e.ok()) return e.error();
       ap = *e;
     }

@@ -504,6 +504,15 @@ std::unique_ptr<LocalFit> SolveFrom(const Problem& p, const FitOptions& o, doubl
 
 // ---- The instrument response: which samples need it ---------------------------------------
 
+// A level held below the one asked for (the budget): the next level's value over its own, and
+// their difference in value units (0 and ratio 1 where not held).
+struct Held {
+  double ratio = 1, change = 0;
+  int streamed = -1;          // the index of the level streamed (-1: not held)
+  double slope = 0;           // d ln(ratio) / d ln(width)
+  double streamed_value = 0;  // at k = 1 and the decision's width
+};
+
 // Each sample's responses by refinement level (response.h), computed once per fit when first
 // needed, and the levels last chosen (a sample is never coarsened again within a fit).
 struct ResponseCache {
@@ -519,17 +528,14 @@ struct ResponseCache {
     // in; 1 and 0 otherwise.
     double correction = 1;
     double quadrature = 0;
-    // The levels streamed for each held step at the last decision (their indices; -1 where that
-    // step was not held) and the rectangle level the apertures' step stood on: where the error is
-    // traced one level finer than these (FitOptions::held_error).
-    int rectangle_streamed = -1, apertures_streamed = -1, apertures_on = 0;
-    double rectangle_change = 0, apertures_change = 0;  // each held step's, in value units
-    // Each held step's streamed value at k = 1 and the decision's width (TraceHeld reuses them
-    // when it traces at that width).
-    double rectangle_streamed_value = 0, apertures_streamed_value = 0;
+    // Each step as the last decision held it (streamed = -1 where not), and the rectangle level
+    // the apertures' step stood on: TraceHeld traces one level finer than each streamed one
+    // (FitOptions::held_error), reusing its streamed value at the decision's width.
+    Held rectangle_held, apertures_held;
+    int apertures_on = 0;
     // d ln(correction) / d ln(width) at the decision's width (SampleModel::slope).
     double slope = 0, log_width = 0;
-    bool Held() const { return rectangle_streamed >= 0 || apertures_streamed >= 0; }
+    bool IsHeld() const { return rectangle_held.streamed >= 0 || apertures_held.streamed >= 0; }
   };
   std::vector<PerSample> of;
   explicit ResponseCache(std::size_t n) : of(n) {}
@@ -579,15 +585,6 @@ Result<double> StreamedValue(const ModelSpec& m, const Sample& s, std::size_t i,
     return Error{v.error().code, Where(s, i) + ": its instrument response: " + v.error().message};
   return *v;
 }
-
-// A level held below the one asked for (the budget): the next level's value over its own, and
-// their difference in value units (0 and ratio 1 where not held).
-struct Held {
-  double ratio = 1, change = 0;
-  int streamed = -1;          // the index of the level streamed (-1: not held)
-  double slope = 0;           // d ln(ratio) / d ln(width)
-  double streamed_value = 0;  // at k = 1
-};
 
 // The step in ln(width) over which a held ratio's slope is taken (forward: one more streamed
 // evaluation of each level).
@@ -655,7 +652,7 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
   ResponseCache::PerSample& c = cache.of[i];
   c.quadrature = 0;
   c.correction = 1;
-  c.rectangle_streamed = c.apertures_streamed = -1;
+  c.rectangle_held = c.apertures_held = {};
   auto coarse = ResponseAt(c, false, 0, s, i);
   if (!coarse.ok()) return coarse.error();
   const Response& r0 = **coarse;
@@ -720,12 +717,8 @@ Result<int> DecideMode(const ModelSpec& m, const Sample& s, std::size_t i, Respo
   // replaces it with the corrected model's own error (FitOptions::held_error).
   c.correction = rectangle_held.ratio * apertures_held.ratio;
   c.quadrature = std::hypot(rectangle_held.change, apertures_held.change);
-  c.rectangle_streamed = rectangle_held.streamed;
-  c.apertures_streamed = apertures_held.streamed;
-  c.rectangle_change = rectangle_held.change;
-  c.apertures_change = apertures_held.change;
-  c.rectangle_streamed_value = rectangle_held.streamed_value;
-  c.apertures_streamed_value = apertures_held.streamed_value;
+  c.rectangle_held = rectangle_held;
+  c.apertures_held = apertures_held;
   c.slope = rectangle_held.slope + apertures_held.slope;  // the ratios multiply
   c.log_width = std::log(width);
   c.apertures_on = c.rectangle_level;
@@ -738,7 +731,7 @@ SampleModel BuildModel(const Sample& s, std::size_t i, const ResponseCache& cach
   SampleModel sm;
   sm.mode = mode;
   const ResponseCache::PerSample& c = cache.of[i];
-  if (c.Held()) {
+  if (c.IsHeld()) {
     sm.slope = c.slope;
     sm.log_width0 = c.log_width;
   }
@@ -1144,7 +1137,7 @@ Result<int> TraceHeld(std::span<const Sample> samples, const FitOptions& o, Resp
   int traced = 0;
   for (std::size_t i = 0; i < samples.size(); ++i) {
     ResponseCache::PerSample& c = cache.of[i];
-    if (!c.Held()) continue;
+    if (!c.IsHeld()) continue;
     const Sample& s = samples[i];
     bool whole = true;
     // The last decision's streamed value where it was taken at this width (the rounds settled
@@ -1169,16 +1162,15 @@ Result<int> TraceHeld(std::span<const Sample> samples, const FitOptions& o, Resp
       return k * std::abs(*b - value);
     };
     double rect = 0, ap = 0;
-    if (c.rectangle_streamed >= 0) {
-      auto e = error(RectangleLevel(c.rectangle_streamed), c.rectangle_streamed_value,
-                     RectangleLevel(c.rectangle_streamed + 1), c.rectangle_change);
+    if (const Held& h = c.rectangle_held; h.streamed >= 0) {
+      auto e = error(RectangleLevel(h.streamed), h.streamed_value, RectangleLevel(h.streamed + 1),
+                     h.change);
       if (!e.ok()) return e.error();
       rect = *e;
     }
-    if (c.apertures_streamed >= 0) {
-      auto e =
-          error(ApertureLevel(c.apertures_streamed, c.apertures_on), c.apertures_streamed_value,
-                ApertureLevel(c.apertures_streamed + 1, c.apertures_on), c.apertures_change);
+    if (const Held& h = c.apertures_held; h.streamed >= 0) {
+      auto e = error(ApertureLevel(h.streamed, c.apertures_on), h.streamed_value,
+                     ApertureLevel(h.streamed + 1, c.apertures_on), h.change);
       if (!e.ok()) return e.error();
       ap = *e;
     }
@@ -1209,7 +1201,7 @@ std::pair<int, double> WithQuadrature(std::span<const Sample> samples, const Res
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const double q = cache.of[i].quadrature;
     out[i].sigma = std::hypot(samples[i].sigma, q);
-    if (!cache.of[i].Held()) continue;
+    if (!cache.of[i].IsHeld()) continue;
     ++capped;
     largest = std::max(largest, q / samples[i].sigma);
   }

@@ -17,6 +17,8 @@ What it checks, as an operator would see it:
     in the lobe plot as they are stored, with the temperature, exposure and monitor plots beside;
   - pause stops the run after its point (no new points while paused), resume continues it, and
     the run finishes with every point drawn; abort asks first, "keep running" keeps it running;
+  - the fit asked from the page says what it is doing while it runs (goniod's fit_progress
+    events), then lists its fits and draws the one BIC prefers;
   - a past run opens with its events, and its CSV link gives the run's CSV.
 It saves screenshots (the README's comes from scripts/console_screenshot.py) and prints what the
 page measured of itself: time to first paint and, per new point, ms from the point's event to the
@@ -263,6 +265,14 @@ try:
                   for g in driver.find_elements(By.CSS_SELECTOR, "#lobe g[data-incidence]")}
     check(incidences == {"0", "30"}, f"one series per incidence ({incidences})")
     # Fit the run from the page: both fits listed, the one BIC prefers drawn through the points.
+    # Every text the message line takes is recorded: the fit's progress events (fit_progress)
+    # pass through it for as long as the fit runs, then the fit's own result replaces them.
+    driver.execute_script("""
+      window.messagesSeen = [];
+      new MutationObserver(() => window.messagesSeen.push(
+          document.getElementById('message').textContent))
+        .observe(document.getElementById('message'),
+                 {childList: true, characterData: true, subtree: true});""")
     driver.find_element(By.ID, "fit").click()
     wait_for(lambda: len(driver.find_elements(By.CSS_SELECTOR, "#fits tr[data-fit]")) == 2,
              "the page's fit stores Beckmann and GGX and lists them",
@@ -271,6 +281,9 @@ try:
              timeout=400)
     wait_for(lambda: len(driver.find_elements(By.CSS_SELECTOR, "#lobe polyline.fit")) == 2,
              "the fit is drawn on the lobe, one dashed line per incidence")
+    seen = driver.execute_script("return window.messagesSeen;") or []
+    check(any(m.startswith("fitting run 1, ") for m in seen),
+          f"the fit's progress was shown while it ran (the message line took {seen[:6]!r})")
     shown_fit = driver.find_element(By.CSS_SELECTOR, "#fits tr.selected").get_attribute("data-fit")
     code, body, _ = http("GET", f"/api/v1/runs/1/fits/{shown_fit}/prediction")
     pred = json.loads(body)["points"] if code == 200 else []

@@ -834,6 +834,8 @@ Status FitOptions::Validate() const {
   if (!(std::isfinite(response_tolerance) && response_tolerance >= 0))
     return InvalidArgument("response_tolerance must be a finite number >= 0");
   if (max_response_rays < 1) return InvalidArgument("max_response_rays must be >= 1");
+  if (!(floor_width_tolerance >= 0))  // infinity: BIC alone decides
+    return InvalidArgument("floor_width_tolerance must be >= 0");
   if (!automatic_starts && !initial_width)
     return InvalidArgument("automatic_starts = false needs an initial_width");
   return OkStatus();
@@ -1464,17 +1466,31 @@ Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const SolveOpti
   if (!with.ok()) return with;
   const double seconds = without->seconds + with->seconds;
   std::ostringstream why;
+  why << std::setprecision(3);
   FitSummary* chosen = &*without;
+  const bool both = with->status != FitStatus::kFailed && without->status != FitStatus::kFailed;
+  const double shift = both ? with->width.value - without->width.value : 0.0;
+  // How far leaving the floor out moves the width, in the width's sigma with the floor.
+  const double moves = with->width.sigma > 0 ? std::abs(shift) / with->width.sigma : 0.0;
   if (with->status != FitStatus::kFailed &&
       (without->status == FitStatus::kFailed || with->bic < without->bic - 2)) {
     chosen = &*with;
     why << "floor kept: BIC lower by " << without->bic - with->bic << " with it";
+  } else if (both && moves > o.floor_width_tolerance) {
+    chosen = &*with;
+    why << "floor kept: BIC lower by only " << without->bic - with->bic
+        << " with it, but leaving it out moves the width by " << moves
+        << " of its sigma (more than " << o.floor_width_tolerance << ")";
   } else if (with->status == FitStatus::kFailed) {
     why << "no floor: the fit with one failed";
   } else {
     why << "no floor: BIC lower by only " << without->bic - with->bic
-        << " with it (more than 2 needed)";
+        << " with it (more than 2 needed), and leaving it out moves the width by " << moves
+        << " of its sigma, which is in sigma";
+    // What the floor the data could not show might have done to the width.
+    without->width.sigma = std::hypot(without->width.sigma, shift);
   }
+  chosen->floor_width_shift = shift;
   chosen->floor_choice = why.str();
   chosen->seconds = seconds;
   return std::move(*chosen);

@@ -43,9 +43,14 @@ namespace gonio::fitting {
 
 enum class Loss { kNone, kHuber, kCauchy };
 // A constant floor b added to the model, S = k f cos + b: the stray light no background
-// measurement removed. kAuto fits with and without it and keeps it only when BIC prefers it by
-// more than 2 (positive evidence, Kass & Raftery 1995): "a floor the data need"; on samples whose
-// background was each measured and subtracted (Sample::background_subtracted) it fits none.
+// measurement removed. kAuto fits with and without it and keeps it when BIC prefers it by more
+// than 2 (positive evidence, Kass & Raftery 1995): "a floor the data need"; and also when leaving
+// it out moves the width by more than FitOptions::floor_width_tolerance of the width's sigma with
+// it, since BIC asks whether the data show the floor, not whether the width depends on it (a
+// floor at 2 sigma of its own moved antiglare's alpha by 1.2 sigma, and BIC left it out about
+// half the time: +0.4 sigma of bias over draws). Where it is left out, that move joins the
+// width's sigma in quadrature (FitSummary::floor_width_shift). On samples whose background was
+// each measured and subtracted (Sample::background_subtracted) it fits none.
 enum class Floor { kOff, kFit, kAuto };
 enum class Derivatives { kAutomatic, kNumeric };
 // A sample held to the ray budget: its error traced one level finer, or the next level's change.
@@ -68,6 +73,11 @@ struct FitOptions {
   Derivatives derivatives = Derivatives::kAutomatic;
   bool inflate_by_reduced_chi2 = true;
   Floor floor = Floor::kOff;
+  // Floor::kAuto keeps the floor where leaving it out moves the width by more than this fraction
+  // of its sigma (with the floor), whatever BIC says; 0.5 left antiglare's alpha +0.13 sigma
+  // biased over 40 draws (BIC alone: +0.39), with a sigma 1.06 times the floor-less one.
+  // Infinity: BIC alone decides.
+  double floor_width_tolerance = 0.5;
   // Samples that carry an instrument response (response.h) are modelled by it (eq. R1) where it
   // changes the prediction by more than this fraction of the sample's sigma at the current
   // estimate; the decision is per sample and taken again at each solution until it settles.
@@ -228,6 +238,10 @@ struct FitSummary {
   Parameter floor;  // the constant floor b (value units); 0 +- 0 unless fitted
   bool floor_fitted = false;
   std::string floor_choice;  // with Floor::kAuto: why it was kept or left out
+  // With Floor::kAuto: the width with a floor fitted minus the width without one. Where the floor
+  // was left out, its magnitude is in width.sigma (in quadrature): what a floor the data could
+  // not show might still have moved it.
+  double floor_width_shift = 0;
   ResponseUse response;
   GeometryUse geometry;
   DarkUse dark;

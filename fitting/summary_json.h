@@ -52,6 +52,7 @@ inline nlohmann::json ToJson(const FitSummary& f) {
           {"floor", param(f.floor)},
           {"floor_fitted", f.floor_fitted},
           {"floor_choice", f.floor_choice},
+          {"floor_width_shift", f.floor_width_shift},
           {"response",
            {{"samples_with_response", f.response.samples_with_response},
             {"rectangle", f.response.rectangle},

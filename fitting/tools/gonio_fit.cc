@@ -219,8 +219,10 @@ int main(int argc, char** argv) {
   app.add_option("--start", start,
                  "starting width (alpha, exponent or s) in addition to the automatic starts");
   app.add_flag("--rational-g1", rational, "Beckmann with Walter's rational G1 (eq. 27)");
-  app.add_option("--floor", floor_arg,
-                 "a constant floor (stray light): auto (kept when BIC prefers it), on or off")
+  app.add_option(
+         "--floor", floor_arg,
+         "a constant floor (stray light): auto (kept when BIC prefers it or when leaving it out "
+         "moves the width by more than half its sigma), on or off")
       ->capture_default_str();
   app.add_flag("--point-model", point_model,
                "ignore the samples' instrument response (an export's '# response:' line)");

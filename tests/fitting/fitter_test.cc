@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <iostream>
+#include <limits>
 #include <random>
 
 #include "fitting/synthetic.h"
@@ -180,6 +181,50 @@ TEST(Fit, AutoFloorIsKeptWhereNeededAndNotFittedWhereTheBackgroundWasMeasured) {
   // One sample without a measured background: the choice is BIC's again.
   data.front().background_subtracted = false;
   EXPECT_TRUE(MustFit(data, o).floor_fitted);
+}
+
+// A floor BIC cannot show may still move the width: antiglare swept +-2 deg about its peak (as
+// the bench sweeps it), with stray light at 2 sigma of its own estimate added to noise-free
+// data. BIC alone (floor_width_tolerance infinite) leaves the floor out and alpha moves off the
+// truth; by default the floor is kept because leaving it out moves the width, and alpha is the
+// truth's. Without stray light the floor stays out, its move (none) adds nothing to sigma.
+TEST(Fit, AutoFloorIsKeptWhereLeavingItOutWouldMoveTheWidth) {
+  SyntheticSweep s = Sweep(Family::kBeckmann, kFigure12[3], 1);
+  s.fine_step = 0;
+  s.theta_v_max = 2;
+  s.theta_v_step = 0.2;
+  s.peak_electrons = 0;  // noise-free: the test is of the choice, not of a draw
+  auto data = MakeSyntheticSweep(s);
+  for (Sample& d : data) d.sigma = std::hypot(5e-4 * d.value, 2e-3 * s.scale);
+  FitOptions o;
+  o.floor = Floor::kFit;
+  const double floor_sigma = MustFit(data, o).floor.sigma;
+  ASSERT_GT(floor_sigma, 0);
+  auto stray = data;
+  for (Sample& d : stray) d.value += 2 * floor_sigma;
+  o.floor = Floor::kAuto;
+  o.floor_width_tolerance = std::numeric_limits<double>::infinity();
+  const FitSummary bic_alone = MustFit(stray, o);
+  ASSERT_FALSE(bic_alone.floor_fitted)
+      << "BIC showed the floor: weak test; " << bic_alone.floor_choice;
+  o.floor_width_tolerance = FitOptions{}.floor_width_tolerance;
+  const FitSummary kept = MustFit(stray, o);
+  const double off_by = (bic_alone.width.value - s.width) / kept.width.sigma;
+  EXPECT_GT(std::abs(off_by), 0.5) << "leaving the floor out did not move alpha: weak test";
+  EXPECT_TRUE(kept.floor_fitted) << kept.floor_choice;
+  EXPECT_NE(kept.floor_choice.find("moves the width"), std::string::npos) << kept.floor_choice;
+  EXPECT_NEAR(kept.floor_width_shift, kept.width.value - bic_alone.width.value,
+              1e-3 * kept.width.sigma);
+  EXPECT_LT(std::abs(kept.width.value - s.width), 0.1 * kept.width.sigma)
+      << "BIC alone was " << off_by << " sigma off";
+  const FitSummary clean = MustFit(data, o);
+  EXPECT_FALSE(clean.floor_fitted) << clean.floor_choice;
+  EXPECT_LT(std::abs(clean.floor_width_shift), 0.01 * clean.width.sigma);
+  EXPECT_LT(std::abs(clean.width.value - s.width), 0.01 * clean.width.sigma);
+  std::cout << "[ info ] stray light at 2 sigma: BIC alone " << off_by << " sigma off ("
+            << bic_alone.floor_choice
+            << "); kept: " << (kept.width.value - s.width) / kept.width.sigma << " sigma, sigma "
+            << kept.width.sigma / bic_alone.width.sigma << " times\n";
 }
 
 TEST(Fit, AntiglareSampledEveryDegreeIsReportedUnconstrainedNotConfident) {

@@ -1468,7 +1468,10 @@ Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const SolveOpti
   std::ostringstream why;
   why << std::setprecision(3);
   FitSummary* chosen = &*without;
-  const bool both = with->status != FitStatus::kFailed && without->status != FitStatus::kFailed;
+  // The move counts between two fits of the width that both describe the data, the floor's no
+  // worse than the one without it (nested: a higher chi-square is a local minimum, not the floor).
+  const bool both = with->status == FitStatus::kConverged &&
+                    without->status == FitStatus::kConverged && with->chi2 <= without->chi2;
   const double shift = both ? with->width.value - without->width.value : 0.0;
   // How far leaving the floor out moves the width, in the width's sigma with the floor.
   const double moves = with->width.sigma > 0 ? std::abs(shift) / with->width.sigma : 0.0;
@@ -1483,6 +1486,9 @@ Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const SolveOpti
         << " of its sigma (more than " << o.floor_width_tolerance << ")";
   } else if (with->status == FitStatus::kFailed) {
     why << "no floor: the fit with one failed";
+  } else if (!both) {
+    why << "no floor: BIC lower by only " << without->bic - with->bic
+        << " with it (more than 2 needed)";
   } else {
     why << "no floor: BIC lower by only " << without->bic - with->bic
         << " with it (more than 2 needed), and leaving it out moves the width by " << moves

@@ -238,7 +238,8 @@ struct FitSummary {
   Parameter floor;  // the constant floor b (value units); 0 +- 0 unless fitted
   bool floor_fitted = false;
   std::string floor_choice;  // with Floor::kAuto: why it was kept or left out
-  // With Floor::kAuto: the width with a floor fitted minus the width without one. Where the floor
+  // With Floor::kAuto: the width with a floor fitted minus the width without one (0 unless both
+  // fits converged, the floor's with no higher chi-square). Where the floor
   // was left out, its magnitude is in width.sigma (in quadrature): what a floor the data could
   // not show might still have moved it.
   double floor_width_shift = 0;

@@ -58,7 +58,8 @@ SimConfig TwoAxisConfig(double clock_speed) {
 namespace {
 
 // One [[stages.axis]]: its role (each once), gearing, soft limits, switches and backlash.
-Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::string>& roles) {
+Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::string>& roles,
+                            std::uint64_t seed) {
   const toml::table* a = item.as_table();
   if (a == nullptr) return r.Fail(&item, "each [[stages.axis]] must be a table");
   AxisConfig ax;
@@ -86,7 +87,13 @@ Result<AxisConfig> ReadAxis(Reader& r, const toml::node& item, std::set<std::str
     return r.Fail(a, "limit_min_steps must be below limit_max_steps");
   GONIO_TRY(r.Number(*a, "backlash_steps", &ax.options.backlash_steps, 0, 1e6));
   GONIO_TRY(r.Number(*a, "settle_error_steps", &ax.options.settle_error_steps, 0, 1e3));
-  ax.options.settle_seed = 1 + roles.size();  // each axis its own draws
+  // Each axis its own draws (its role is counted already: 2 for the first), and each [clock] seed
+  // its own (seed 1 keeps the draws it always had).
+  // They were 1 + the axis's index whatever the seed, so every series of runs on a fresh
+  // gonio-sim repeated the same settle errors run for run, and the coverage benchmark's series
+  // under different seeds were not independent in their angles (antiglare's alpha moves by about
+  // its sigma with the arm's errors: docs/measurement.md).
+  ax.options.settle_seed = 1 + roles.size() + 16 * (seed - 1);
   GONIO_TRY(r.Bool(*a, "latched_inputs", &ax.options.latched_inputs));
   GONIO_TRY(r.Number(*a, "ready_delay_s", &ax.options.ready_delay_s, 0, 10));
   GONIO_TRY(r.Bool(*a, "stall_alarm", &ax.options.stall_alarm));
@@ -157,7 +164,7 @@ Result<SimConfig> LoadSimConfig(const std::string& path) {
       c.axes.clear();
       std::set<std::string> roles;
       for (const toml::node& item : *list) {
-        auto ax = ReadAxis(r, item, roles);
+        auto ax = ReadAxis(r, item, roles, c.seed);
         if (!ax.ok()) return ax.error();
         c.axes.push_back(*ax);
       }

@@ -18,8 +18,9 @@
 // own, apart from the noise), the share of fits whose 2-sigma interval covers the truth, and the
 // mean chi2/dof.
 // The scene is not the whole instrument (no stages, camera or monitor): the noise is drawn from
-// the budget, not measured. Run: scripts/bench.sh measure [repeats] [sample], the second to run
-// one sample's cases alone (e.g. antiglare).
+// the budget, not measured. Run: scripts/bench.sh measure [repeats] [cases], the second to run
+// the cases whose "sample family mm WxH" holds it alone (e.g. antiglare, or 2x2 for antiglare
+// under its small rectangle). bench/plot_measure.py charts the tables.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -127,7 +128,10 @@ int main(int argc, char** argv) {
       "| sample | family | mm | rect px | fit | median s | bias | bias/sigma | noise-free "
       "bias/sigma | coverage | chi2/dof |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
   for (const Case& c : cases) {
-    if (!only.empty() && c.sample != only) continue;
+    char key[128];  // what `only` is looked for in: "antiglare beckmann 6 19x62"
+    std::snprintf(key, sizeof key, "%s %s %g %gx%g", c.sample.c_str(), c.family.c_str(),
+                  c.thickness_mm, c.rect_w_px, c.rect_h_px);
+    if (!only.empty() && std::string(key).find(only) == std::string::npos) continue;
     const std::vector<Clean> clean = Render(c);
     bool held = false;  // some draw's full fit held a sample to the budget
     for (const Way& w : ways) {
@@ -188,7 +192,7 @@ int main(int argc, char** argv) {
           held_median > 0 ? std::string(w.name) + " (" + std::to_string(held_median) + " held)"
                           : std::string(w.name);
       const double n = std::max(1, fitted);
-      std::printf("| %s | %s | %g | %gx%g | %s | %.3f | %+.2e | %+.2f | %+.2f | %d/%d | %.3g |\n",
+      std::printf("| %s | %s | %g | %gx%g | %s | %.3g | %+.2e | %+.2f | %+.2f | %d/%d | %.3g |\n",
                   c.sample.c_str(), c.family.c_str(), c.thickness_mm, c.rect_w_px, c.rect_h_px,
                   name.c_str(), seconds[seconds.size() / 2], bias / n, pull / n, noise_free,
                   covered, repeats, chi2 / n);

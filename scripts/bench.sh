@@ -17,7 +17,7 @@
 #   measurement_tradeoff  fit time against alpha bias and coverage: point model, rectangle,
 #                    rectangle + apertures, on Figure 12's samples; where the ray budget holds
 #                    a sample also with the held error's conservative way and without the budget
-#                                                  -> measurement_tradeoff.md
+#                                                  -> measurement_tradeoff.md, .png
 #   instrument_coverage.sh  alpha's 2-sigma coverage, bias and pull spread through the whole
 #                    simulated instrument (gonio-sim, drivers, engine, SQLite, gonio-fit): ground
 #                    glass (the demo's plan; also a GGX truth and 3 and 9 mm plates), frosted,
@@ -34,8 +34,9 @@
 #                    8) real adaptive runs of the ground glass on the simulated instrument, one per
 #                    noise seed                    -> forecast_spread.md
 # Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|forecast|sweep|api|stop|rtu|soak ...]
-#        MEASURE_REPEATS=N sets measure's noise draws per case (default 20); MEASURE_SAMPLE=name
-#        runs one sample's cases alone (ground, frosted, etched, antiglare)
+#        MEASURE_REPEATS=N sets measure's noise draws per case (default 20); MEASURE_SAMPLE=text
+#        runs the cases whose "sample family mm WxH" holds it alone (ground, frosted, etched,
+#        antiglare; 2x2 for antiglare's small rectangle, 19x62 for its 3 x 10 mm one)
 #        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20);
 #        COVERAGE_CASES="ground antiglare_3x10 ..." runs those cases alone (ground, ground_ggx,
 #        ground_3mm, ground_9mm, frosted, etched, antiglare, antiglare_ggx, antiglare_3x10)
@@ -76,7 +77,8 @@ for part in "${parts[@]}"; do
       build-release/bench/scene_rectangle | tee out/bench/scene_rectangle.md ;;
     measure)
       build-release/bench/measurement_tradeoff "${MEASURE_REPEATS:-20}" ${MEASURE_SAMPLE:+"$MEASURE_SAMPLE"} \
-        | tee out/bench/measurement_tradeoff.md ;;
+        | tee out/bench/measurement_tradeoff.md
+      $py bench/plot_measure.py out/bench/measurement_tradeoff.png out/bench/measurement_tradeoff.md ;;
     coverage)  # holds the GigE Vision port: no other simulated camera may run meanwhile
       # case, then the simulated sample (instrument_coverage.sh's SIM_* variables), then the plan
       cases=(

@@ -74,8 +74,8 @@ struct FitOptions {
   bool inflate_by_reduced_chi2 = true;
   Floor floor = Floor::kOff;
   // Floor::kAuto keeps the floor where leaving it out moves the width by more than this fraction
-  // of its sigma (with the floor), whatever BIC says; 0.5 left antiglare's alpha +0.13 sigma
-  // biased over 40 draws (BIC alone: +0.39), with a sigma 1.06 times the floor-less one.
+  // of its sigma (with the floor), whatever BIC says; 0.5 left antiglare's alpha +0.11 sigma
+  // biased over 40 draws (BIC alone: +0.39), with a sigma 1.07 times the floor-less one.
   // Infinity: BIC alone decides.
   double floor_width_tolerance = 0.5;
   // Samples that carry an instrument response (response.h) are modelled by it (eq. R1) where it
@@ -239,9 +239,9 @@ struct FitSummary {
   bool floor_fitted = false;
   std::string floor_choice;  // with Floor::kAuto: why it was kept or left out
   // With Floor::kAuto: the width with a floor fitted minus the width without one (0 unless both
-  // fits converged, the floor's with no higher chi-square). Where the floor
-  // was left out, its magnitude is in width.sigma (in quadrature): what a floor the data could
-  // not show might still have moved it.
+  // fits converged, the floor's with no higher chi-square). Where the floor was left out, its
+  // magnitude is in width.sigma (in quadrature): what a floor the data could not show might
+  // still have moved it.
   double floor_width_shift = 0;
   ResponseUse response;
   GeometryUse geometry;

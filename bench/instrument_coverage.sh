@@ -19,7 +19,9 @@
 #              sequence (frames that fall alike then repeat their noise)
 #   COVERAGE_KEEP  a directory to keep each run's export and fit in (to refit them later), and
 #              gonio-sim's truth.csv (what each frame saw: bench/coverage/truth_angles.py,
-#              value_check.py, lamp_check.py, norm_check.py)
+#              value_check.py, lamp_check.py, norm_check.py); one per series: a case run as
+#              several series (a SIM_SEED each) is tabulated whole by
+#              bench/coverage/coverage_table.py TRUTH KEEP1 KEEP2 ...
 #   COVERAGE_COOL  the CCD's setpoint (C) before the first run, as config/schedule_demo.toml cools
 #              it: default -10; "off" runs at ambient (20 C: dark current 2^(30/6) = 32 times,
 #              whose error each exposure's dark set shares among its points; docs/measurement.md)
@@ -82,27 +84,4 @@ for i in $(seq "$runs"); do
   fi
   echo "run $i of $runs fitted" >&2
 done
-/usr/bin/python3 - "$work" "$runs" "$truth" <<'EOF'
-import json, math, statistics, sys
-work, runs, truth = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
-rows = {"normal incidence": [], "joint": []}
-for i in range(1, runs + 1):
-    s = json.load(open(f"{work}/fit{i}/fit_summary.json"))
-    for name, fits in (("normal incidence", s["normal_incidence_fits"]), ("joint", s["fits"])):
-        f = fits[0]
-        rows[name].append((f["width"]["value"], f["width"]["sigma"], f["width"]["sigma_geometry"],
-                           f["reduced_chi2"], f["status"]))
-print("| fit | runs converged | 2σ covers truth | mean bias / mean σ | pull rms | mean σ(α) | of which geometry | χ²/dof range |")
-print("|---|---|---|---|---|---|---|---|")
-for name, r in rows.items():
-    ok = [x for x in r if x[4] == "converged"]
-    pulls = [(a - truth) / s for a, s, *_ in ok if s > 0]
-    covered = sum(abs(p) < 2 for p in pulls)
-    mean_sigma = statistics.fmean(s for _, s, *_ in ok) if ok else float("nan")
-    bias = statistics.fmean(a for a, *_ in ok) - truth if ok else float("nan")
-    rms = math.sqrt(statistics.fmean(p * p for p in pulls)) if pulls else float("nan")
-    geo = statistics.fmean(g for _, _, g, *_ in ok) if ok else float("nan")
-    chi = [x[3] for x in ok]
-    print(f"| {name} | {len(ok)}/{runs} | {covered}/{len(pulls)} | {bias / mean_sigma:+.2f} | {rms:.2f} "
-          f"| {mean_sigma:.2g} | {geo:.2g} | {min(chi):.2f}–{max(chi):.2f} |")
-EOF
+/usr/bin/python3 bench/coverage/coverage_table.py "$truth" "$work"

@@ -20,13 +20,14 @@
 #                                                  -> measurement_tradeoff.md, .png
 #   instrument_coverage.sh  alpha's 2-sigma coverage, bias and pull spread through the whole
 #                    simulated instrument (gonio-sim, drivers, engine, SQLite, gonio-fit): ground
-#                    glass (the demo's plan; also a GGX truth and 3 and 9 mm plates), frosted,
-#                    etched, antiglare (auto rectangle; also a GGX truth and a fixed 3 x 10 mm
-#                    rectangle); not in the default set: COVERAGE_RUNS (default 20) runs of 2-5
-#                    minutes per case (antiglare_3x10: about 11, of which 6-7 the fit, its
-#                    samples held to the ray budget, docs/measurement.md); COVERAGE_CASES picks
-#                    some, SIM_SEED continues a stopped case with fresh noise
-#                                                  -> coverage_<case>.md
+#                    glass (the demo's plan), frosted, etched and antiglare (its auto rectangle),
+#                    each with a Beckmann and a GGX truth on 3, 6 and 9 mm plates (24 cases), and
+#                    antiglare under a fixed 3 x 10 mm rectangle; not in the default set:
+#                    COVERAGE_RUNS (default 20) runs of 2-5 minutes per case (antiglare_3x10:
+#                    about 11, of which 6-7 the fit, its samples held to the ray budget,
+#                    docs/measurement.md), about a day for all; COVERAGE_CASES picks some,
+#                    SIM_SEED adds fresh runs to a case's earlier series
+#                                  -> coverage_<case>.md, coverage/<case>/seed<N>/ (each run kept)
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass
 #                                                  -> acquire.md, acquire.json, acquire.png
@@ -38,8 +39,10 @@
 #        runs the cases whose "sample family mm WxH" holds it alone (ground, frosted, etched,
 #        antiglare; 2x2 for antiglare's small rectangle, 19x62 for its 3 x 10 mm one)
 #        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20);
-#        COVERAGE_CASES="ground antiglare_3x10 ..." runs those cases alone (ground, ground_ggx,
-#        ground_3mm, ground_9mm, frosted, etched, antiglare, antiglare_ggx, antiglare_3x10)
+#        COVERAGE_CASES="ground antiglare_3x10 ..." runs those cases alone: sample[_ggx][_3mm|_9mm]
+#        for sample ground, frosted, etched or antiglare (a Beckmann truth on a 6 mm plate unless
+#        named), and antiglare_3x10; SIM_SEED=N adds a series of fresh runs to a case's earlier
+#        ones (out/bench/coverage/CASE/seedN), tabulated together in out/bench/coverage_CASE.md
 #        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
 #        FORECAST_RUNS=N sets forecast's real adaptive runs (default 8)
 #        (default: all but coverage and soak)
@@ -80,28 +83,48 @@ for part in "${parts[@]}"; do
         | tee out/bench/measurement_tradeoff.md
       $py bench/plot_measure.py out/bench/measurement_tradeoff.png out/bench/measurement_tradeoff.md ;;
     coverage)  # holds the GigE Vision port: no other simulated camera may run meanwhile
-      # case, then the simulated sample (instrument_coverage.sh's SIM_* variables), then the plan
-      cases=(
-        "ground|-|config/plan_demo.toml"
-        "ground_ggx|SIM_MODEL=ggx SIM_ALPHA=0.394|config/plan_demo.toml"
-        "ground_3mm|SIM_THICKNESS=3.0|config/plan_demo.toml"
-        "ground_9mm|SIM_THICKNESS=9.0|config/plan_demo.toml"
-        "frosted|SIM_ALPHA=0.400|bench/coverage/plan_frosted.toml"
-        "etched|SIM_ALPHA=0.493|bench/coverage/plan_etched.toml"
-        "antiglare|SIM_ALPHA=0.023|bench/coverage/plan_antiglare.toml"
-        "antiglare_ggx|SIM_MODEL=ggx SIM_ALPHA=0.027|bench/coverage/plan_antiglare.toml"
-        "antiglare_3x10|SIM_ALPHA=0.023|bench/coverage/plan_antiglare_3x10.toml")
+      # The cross of issue #16: each Figure 12 sample (its plan, then Walter's Beckmann and GGX
+      # widths, docs/reference.md) with both truths on 6, 3 and 9 mm plates, named
+      # sample[_ggx][_3mm|_9mm]; and antiglare under a fixed 3 x 10 mm rectangle.
+      cases=()
+      for s in "ground|config/plan_demo.toml|0.344|0.394" \
+        "frosted|bench/coverage/plan_frosted.toml|0.400|0.454" \
+        "etched|bench/coverage/plan_etched.toml|0.493|0.553" \
+        "antiglare|bench/coverage/plan_antiglare.toml|0.023|0.027"; do
+        IFS='|' read -r sample plan beckmann ggx <<< "$s"
+        for family in beckmann ggx; do
+          alpha=$beckmann suffix=""
+          [[ $family == beckmann ]] || { alpha=$ggx suffix=_ggx; }
+          for mm in 6 3 9; do
+            name=$sample$suffix
+            [[ $mm == 6 ]] || name=${name}_${mm}mm
+            cases+=("$name|SIM_MODEL=$family SIM_ALPHA=$alpha SIM_THICKNESS=$mm.0|$plan|$alpha")
+          done
+        done
+      done
+      cases+=("antiglare_3x10|SIM_ALPHA=0.023|bench/coverage/plan_antiglare_3x10.toml|0.023")
       names=" ${cases[*]%%|*} "
       wanted=" ${COVERAGE_CASES:-$names} "
+      # Each series is kept under its seed, so a case run as several series (a stopped one
+      # continued under another SIM_SEED) is tabulated whole; the same seed again would repeat
+      # the same noise, so it is refused (before any case runs) rather than counted twice.
       for w in $wanted; do
         [[ "$names" == *" $w "* ]] ||
           { echo "bench.sh: unknown coverage case '$w' (${cases[*]%%|*})" >&2; exit 2; }
+        ! compgen -G "out/bench/coverage/$w/seed${SIM_SEED:-1}/fit*" > /dev/null ||
+          { echo "bench.sh: out/bench/coverage/$w/seed${SIM_SEED:-1} holds a series of case" \
+              "$w already: set SIM_SEED to another seed to add fresh runs, or remove it" >&2
+            exit 2; }
       done
       for c in "${cases[@]}"; do
-        IFS='|' read -r name sample plan <<< "$c"
+        IFS='|' read -r name sample plan truth <<< "$c"
         [[ "$wanted" == *" $name "* ]] || continue
-        [[ "$sample" != - ]] || sample=""
-        env $sample bench/instrument_coverage.sh build-release "${COVERAGE_RUNS:-20}" "$plan" \
+        keep=out/bench/coverage/$name/seed${SIM_SEED:-1}
+        mkdir -p "$keep"
+        env $sample COVERAGE_KEEP="$keep" bench/instrument_coverage.sh build-release \
+          "${COVERAGE_RUNS:-20}" "$plan" | tee "out/bench/coverage/$name/seed${SIM_SEED:-1}.md"
+        { echo "# $name: every series in out/bench/coverage/$name"; echo
+          $py bench/coverage/coverage_table.py "$truth" out/bench/coverage/"$name"/seed*/; } \
           | tee "out/bench/coverage_$name.md"
       done ;;
     acquire)

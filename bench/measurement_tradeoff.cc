@@ -14,9 +14,14 @@
 //   unbudgeted the same without the budget (a fit holds every level asked for), both run only
 //              for a case where some draw's full fit held a sample.
 // Per case and way: the median fit time, the mean alpha bias (relative, and in the fits' own
-// sigmas), the bias of one fit of the data without noise (in its sigma: the model's and the fit's
-// own, apart from the noise), the share of fits whose 2-sigma interval covers the truth, and the
-// mean chi2/dof.
+// sigmas, with its standard error over the draws), the bias of one fit of the data without noise
+// (in its sigma: the model's and the fit's own, apart from the noise), the share of fits whose
+// 2-sigma interval covers the truth, and the mean chi2/dof.
+// Environment: MEASURE_NOISE scales the budget's sigma (drawn and stated alike; default 1): a
+// bias that is the noise's through the model's curvature grows in sigma as the noise does (of
+// order sigma^2, so bias/sigma doubles with the noise), one that is chance does not.
+// MEASURE_SEED draws other noise (default 12345); MEASURE_WAYS runs those ways alone ("point",
+// "rectangle", "full", "next", "unbudgeted"; the last two only where full held a sample).
 // The scene is not the whole instrument (no stages, camera or monitor): the noise is drawn from
 // the budget, not measured. Run: scripts/bench.sh measure [repeats] [cases], the second to run
 // the cases whose "sample family mm WxH" holds it alone (e.g. antiglare, or 2x2 for antiglare
@@ -93,11 +98,51 @@ std::vector<Clean> Render(const Case& c) {
   return out;
 }
 
+// The words of a list separated by spaces or commas.
+std::vector<std::string> Words(const std::string& text) {
+  std::vector<std::string> out;
+  std::string word;
+  for (char ch : text + " ") {
+    if (ch == ' ' || ch == ',') {
+      if (!word.empty()) out.push_back(word);
+      word.clear();
+    } else {
+      word += ch;
+    }
+  }
+  return out;
+}
+
+// A way's first word ("next" for "next change"), which MEASURE_WAYS names it by.
+std::string FirstWord(const char* name) {
+  const std::string s(name);
+  return s.substr(0, s.find(' '));
+}
+
+// A positive number from the environment, or `fallback` where it is not set; exits naming the
+// variable where it is not one.
+double EnvNumber(const char* name, double fallback, bool integer) {
+  const char* text = std::getenv(name);
+  if (text == nullptr || *text == '\0') return fallback;
+  char* end = nullptr;
+  const double v = std::strtod(text, &end);
+  if (*end != '\0' || !std::isfinite(v) || v <= 0 || (integer && v != std::floor(v))) {
+    std::fprintf(stderr, "measurement_tradeoff: %s must be a positive %s, not '%s'\n", name,
+                 integer ? "integer" : "number", text);
+    std::exit(2);
+  }
+  return v;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   const int repeats = argc > 1 ? std::max(1, std::atoi(argv[1])) : 20;
   const std::string only = argc > 2 ? argv[2] : "";
+  const double noise = EnvNumber("MEASURE_NOISE", 1, false);
+  const auto seed = static_cast<std::uint64_t>(EnvNumber("MEASURE_SEED", 12345, true));
+  const char* ways_env = std::getenv("MEASURE_WAYS");
+  const std::string only_ways = ways_env != nullptr ? ways_env : "";
   // Figure 12's samples (docs/reference.md), each family with its own width; 1 x 3 mm rectangles
   // (6 x 19 pixels) for the wide lobes, 0.3 mm (2 x 2) and 3 x 10 mm (19 x 62) for antiglare.
   std::vector<Case> cases;
@@ -120,10 +165,20 @@ int main(int argc, char** argv) {
                       {"next change", true, true, fitting::FitOptions{}.max_response_rays,
                        fitting::HeldError::kNextChange, true},
                       {"unbudgeted", true, true, 1L << 40, fitting::HeldError::kTraced, true}};
+  for (const std::string& w : Words(only_ways))
+    if (std::none_of(std::begin(ways), std::end(ways),
+                     [&](const Way& x) { return w == FirstWord(x.name); })) {
+      std::fprintf(stderr,
+                   "measurement_tradeoff: MEASURE_WAYS: no way '%s' (point, rectangle, full, next, "
+                   "unbudgeted)\n",
+                   w.c_str());
+      return 2;
+    }
   std::printf(
-      "%d noise draws per case; alpha bias relative and in the fits' sigmas; coverage: "
-      "share of 2-sigma intervals that hold the truth\n\n",
-      repeats);
+      "%d noise draws per case (seed %llu, the budget's sigma times %g); alpha bias relative and "
+      "in the fits' sigmas (+- its standard error over the draws); coverage: share of 2-sigma "
+      "intervals that hold the truth\n\n",
+      repeats, static_cast<unsigned long long>(seed), noise);
   std::printf(
       "| sample | family | mm | rect px | fit | median s | bias | bias/sigma | noise-free "
       "bias/sigma | coverage | chi2/dof |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
@@ -136,11 +191,15 @@ int main(int argc, char** argv) {
     bool held = false;  // some draw's full fit held a sample to the budget
     for (const Way& w : ways) {
       if (w.only_where_held && !held) continue;
+      const std::vector<std::string> wanted = Words(only_ways);
+      if (!wanted.empty() &&
+          std::find(wanted.begin(), wanted.end(), FirstWord(w.name)) == wanted.end())
+        continue;
       std::vector<int> held_per_draw;
-      std::mt19937_64 rng(12345);
+      std::mt19937_64 rng(seed);
       std::normal_distribution<double> unit(0, 1);
       std::vector<double> seconds;
-      double bias = 0, pull = 0, chi2 = 0;
+      double bias = 0, pull = 0, pull2 = 0, chi2 = 0;
       int covered = 0, fitted = 0;
       double noise_free = std::numeric_limits<double>::quiet_NaN();
       // Draw -1 is the data without noise: its bias is the model's and the fit's alone (the
@@ -151,7 +210,7 @@ int main(int argc, char** argv) {
           fitting::Sample s = k.s;
           // The demo's budget: 0.05 % at the peak (monitor and shot noise), 0.002 absolute in
           // the tails (the stray light's own shot noise and the dark's).
-          s.sigma = std::hypot(5e-4 * k.value, 2e-3);
+          s.sigma = noise * std::hypot(5e-4 * k.value, 2e-3);
           s.value = r < 0 ? k.value : k.value + s.sigma * unit(rng);
           if (w.response && !w.apertures) {
             auto setup = std::make_shared<fitting::ResponseSetup>(*s.response->setup);
@@ -181,6 +240,7 @@ int main(int argc, char** argv) {
         held_per_draw.push_back(f->response.capped);
         bias += (f->width.value - c.alpha) / c.alpha;
         pull += (f->width.value - c.alpha) / f->width.sigma;
+        pull2 += std::pow((f->width.value - c.alpha) / f->width.sigma, 2);
         covered += std::abs(f->width.value - c.alpha) < 2 * f->width.sigma;
         chi2 += f->reduced_chi2;
       }
@@ -192,10 +252,15 @@ int main(int argc, char** argv) {
           held_median > 0 ? std::string(w.name) + " (" + std::to_string(held_median) + " held)"
                           : std::string(w.name);
       const double n = std::max(1, fitted);
-      std::printf("| %s | %s | %g | %gx%g | %s | %.3g | %+.2e | %+.2f | %+.2f | %d/%d | %.3g |\n",
-                  c.sample.c_str(), c.family.c_str(), c.thickness_mm, c.rect_w_px, c.rect_h_px,
-                  name.c_str(), seconds[seconds.size() / 2], bias / n, pull / n, noise_free,
-                  covered, repeats, chi2 / n);
+      // The standard error of the mean pull, from the pulls' own spread.
+      const double se =
+          fitted > 1 ? std::sqrt(std::max(0.0, pull2 / n - std::pow(pull / n, 2)) * n / (n - 1) / n)
+                     : std::numeric_limits<double>::quiet_NaN();
+      std::printf(
+          "| %s | %s | %g | %gx%g | %s | %.3g | %+.2e | %+.2f ± %.2f | %+.2f | %d/%d | %.3g |\n",
+          c.sample.c_str(), c.family.c_str(), c.thickness_mm, c.rect_w_px, c.rect_h_px,
+          name.c_str(), seconds[seconds.size() / 2], bias / n, pull / n, se, noise_free, covered,
+          repeats, chi2 / n);
       std::fflush(stdout);
     }
   }

@@ -48,7 +48,7 @@ def read(path):
                 "case": f"{r['sample']} {r['family']} {r['mm']} mm {r['rect px']} px",
                 "way": r["fit"].split(" (")[0],
                 "seconds": float(r["median s"]),
-                "pull": float(r["bias/sigma"]),
+                "pull": float(r["bias/sigma"].split(" ± ")[0]),  # "+0.43 ± 0.21" or "+0.43"
                 "covered": covered / draws if draws else 0.0,
             })
         except ValueError as e:

@@ -37,7 +37,9 @@
 # Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|forecast|sweep|api|stop|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20); MEASURE_SAMPLE=text
 #        runs the cases whose "sample family mm WxH" holds it alone (ground, frosted, etched,
-#        antiglare; 2x2 for antiglare's small rectangle, 19x62 for its 3 x 10 mm one)
+#        antiglare; 2x2 for antiglare's small rectangle, 19x62 for its 3 x 10 mm one);
+#        MEASURE_NOISE=x scales its noise (a bias of order sigma^2 grows in sigma with it, chance
+#        does not), MEASURE_SEED=N draws other noise, MEASURE_WAYS="full ..." runs those ways
 #        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20);
 #        COVERAGE_CASES="ground antiglare_3x10 ..." runs those cases alone: sample[_ggx][_3mm|_9mm]
 #        for sample ground, frosted, etched or antiglare (a Beckmann truth on a 6 mm plate unless

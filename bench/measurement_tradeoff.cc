@@ -142,7 +142,7 @@ int main(int argc, char** argv) {
   const double noise = EnvNumber("MEASURE_NOISE", 1, false);
   const auto seed = static_cast<std::uint64_t>(EnvNumber("MEASURE_SEED", 12345, true));
   const char* ways_env = std::getenv("MEASURE_WAYS");
-  const std::string only_ways = ways_env != nullptr ? ways_env : "";
+  const std::vector<std::string> only_ways = Words(ways_env != nullptr ? ways_env : "");
   // Figure 12's samples (docs/reference.md), each family with its own width; 1 x 3 mm rectangles
   // (6 x 19 pixels) for the wide lobes, 0.3 mm (2 x 2) and 3 x 10 mm (19 x 62) for antiglare.
   std::vector<Case> cases;
@@ -165,7 +165,7 @@ int main(int argc, char** argv) {
                       {"next change", true, true, fitting::FitOptions{}.max_response_rays,
                        fitting::HeldError::kNextChange, true},
                       {"unbudgeted", true, true, 1L << 40, fitting::HeldError::kTraced, true}};
-  for (const std::string& w : Words(only_ways))
+  for (const std::string& w : only_ways)
     if (std::none_of(std::begin(ways), std::end(ways),
                      [&](const Way& x) { return w == FirstWord(x.name); })) {
       std::fprintf(stderr,
@@ -191,9 +191,8 @@ int main(int argc, char** argv) {
     bool held = false;  // some draw's full fit held a sample to the budget
     for (const Way& w : ways) {
       if (w.only_where_held && !held) continue;
-      const std::vector<std::string> wanted = Words(only_ways);
-      if (!wanted.empty() &&
-          std::find(wanted.begin(), wanted.end(), FirstWord(w.name)) == wanted.end())
+      if (!only_ways.empty() &&
+          std::find(only_ways.begin(), only_ways.end(), FirstWord(w.name)) == only_ways.end())
         continue;
       std::vector<int> held_per_draw;
       std::mt19937_64 rng(seed);

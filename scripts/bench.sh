@@ -100,11 +100,11 @@ for part in "${parts[@]}"; do
           for mm in 6 3 9; do
             name=$sample$suffix
             [[ $mm == 6 ]] || name=${name}_${mm}mm
-            cases+=("$name|SIM_MODEL=$family SIM_ALPHA=$alpha SIM_THICKNESS=$mm.0|$plan|$alpha")
+            cases+=("$name|SIM_MODEL=$family SIM_ALPHA=$alpha SIM_THICKNESS=$mm.0|$plan")
           done
         done
       done
-      cases+=("antiglare_3x10|SIM_ALPHA=0.023|bench/coverage/plan_antiglare_3x10.toml|0.023")
+      cases+=("antiglare_3x10|SIM_ALPHA=0.023|bench/coverage/plan_antiglare_3x10.toml")
       names=" ${cases[*]%%|*} "
       wanted=" ${COVERAGE_CASES:-$names} "
       # Each series is kept under its seed, so a case run as several series (a stopped one
@@ -119,8 +119,9 @@ for part in "${parts[@]}"; do
             exit 2; }
       done
       for c in "${cases[@]}"; do
-        IFS='|' read -r name sample plan truth <<< "$c"
+        IFS='|' read -r name sample plan <<< "$c"
         [[ "$wanted" == *" $name "* ]] || continue
+        truth=${sample#*SIM_ALPHA=} truth=${truth%% *}  # the simulated width, from the case
         keep=out/bench/coverage/$name/seed${SIM_SEED:-1}
         mkdir -p "$keep"
         env $sample COVERAGE_KEEP="$keep" bench/instrument_coverage.sh build-release \

@@ -519,8 +519,14 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
   if (Status s = db_.SetRunStatus(run, RunStatus::kRunning); !s.ok()) return s;
   if (info->points_done > 0)
     (void)db_.AddEvent(run, "resumed", std::to_string(info->points_done) + " points already done");
-  // The shutter starts open (a previous run may have been killed during a dark).
-  if (Status s = camera_.SetShutter(true); !s.ok()) return s;
+  // The shutter starts open (a previous run may have been killed during a dark). A camera that
+  // does not answer leaves the run paused, as a fault at a point does, not marked running.
+  if (Status s = camera_.SetShutter(true); !s.ok()) {
+    (void)stages_.StopAll();
+    (void)db_.AddEvent(run, "fault", s.error().ToString());
+    (void)db_.SetRunStatus(run, RunStatus::kPaused);
+    return s;
+  }
   Progress pr;
   pr.total = info->points_total - info->points_skipped;
   pr.done = info->points_done;

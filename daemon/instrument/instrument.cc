@@ -1,6 +1,9 @@
 #include "daemon/instrument/instrument.h"
 
 #include <algorithm>
+#include <chrono>
+#include <future>
+#include <thread>
 #include <utility>
 
 #include "backends/aravis_camera.h"
@@ -91,6 +94,15 @@ Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,
     in.monitor = std::move(m).value();
   }
   return in;
+}
+
+bool StopStagesWithin(devices::StageController& stages, double seconds) {
+  // Not std::async: its future would wait for the request when it went out of scope.
+  auto answered = std::make_shared<std::promise<bool>>();
+  std::future<bool> result = answered->get_future();
+  std::thread([&stages, answered] { answered->set_value(stages.StopAll().ok()); }).detach();
+  return result.wait_for(std::chrono::duration<double>(seconds)) == std::future_status::ready &&
+         result.get();
 }
 
 }  // namespace gonio::daemon

@@ -53,4 +53,10 @@ struct Instrument {
 Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,
                                   std::vector<acquisition::Specimen> specimens);
 
+// Tells every axis to stop and waits at most `seconds` for the controller to confirm; true when it
+// did. For a process about to exit without waiting on a device that may not answer (goniod and
+// gonio-acquire on a signal): the request goes on in a detached thread, so `stages` must live
+// until the process ends.
+bool StopStagesWithin(devices::StageController& stages, double seconds);
+
 }  // namespace gonio::daemon

@@ -7,7 +7,10 @@
 //   gonio-acquire --db runs.sqlite export RUN --out run.csv    # the fitter's CSV
 //   gonio-acquire --db runs.sqlite status RUN
 //
-// Ctrl-C (SIGINT) or SIGTERM pauses after the current point is stored; resume continues it.
+// Ctrl-C (SIGINT) or SIGTERM pauses after the current point is stored; resume continues it. A
+// second signal, or one while a device fault is waited out, stops it at once without waiting on
+// devices that may not answer: the stages are told to stop, the point in hand (if any) is left
+// pending, and resume continues the run (every stored point is its own transaction).
 // A device fault that the drivers' own retries did not clear (a device restarted, a cable
 // pulled) pauses the run, which is tried again every --retry-s until it measures again, as goniod
 // does, for at most --give-up-s (0: stop at the first fault).
@@ -24,6 +27,7 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <mutex>
 #include <optional>
 #include <sstream>
 #include <thread>
@@ -39,8 +43,51 @@ namespace {
 using namespace gonio;
 using namespace gonio::acquisition;
 
-std::atomic<bool> g_stop{false};
-void OnSignal(int) { g_stop = true; }
+std::atomic<bool> g_stop{false};     // a signal came: pause after the point in hand
+std::atomic<bool> g_waiting{false};  // no point in hand: a device fault is being waited out
+std::atomic<devices::StageController*> g_stages{nullptr};
+std::atomic<Storage*> g_store{nullptr};  // with g_run, the run StopNow leaves paused
+std::atomic<std::int64_t> g_run{0};
+std::mutex g_exit;  // held by StopNow to the end: the measuring thread does not report meanwhile
+
+// Exits (3, paused by a signal) without waiting for the measuring thread, which may be held for
+// tens of seconds by a device that does not answer (Aravis' connect retries, a Modbus timeout).
+[[noreturn]] void StopNow(const char* why) {
+  g_exit.lock();
+  std::cerr << "gonio-acquire: " << why << ": stopping now; the point in hand, if any, is left "
+            << "pending (gonio-acquire ... resume continues the run)" << std::endl;
+  if (devices::StageController* stages = g_stages.load()) {
+    constexpr double kStopWaitS = 1.5;
+    if (!daemon::StopStagesWithin(*stages, kStopWaitS))
+      std::cerr << "gonio-acquire: the stages did not confirm STOP: they may still be moving"
+                << std::endl;
+  }
+  // Storage is safe to share between threads; a point being stored meanwhile is one transaction,
+  // in whole or not at all.
+  if (Storage* store = g_store.load(); store != nullptr && g_run > 0) {
+    (void)store->AddEvent(g_run, "paused", std::string("stopped at once (") + why + ")");
+    (void)store->SetRunStatus(g_run, RunStatus::kPaused);
+  }
+  std::_Exit(3);
+}
+
+// Takes SIGINT and SIGTERM (blocked in every thread) on a thread of its own. The first sets
+// g_stop, which the run and the cooling wait see between points; a second, or the first while a
+// device fault is waited out for longer than a moment (the retry loop sees g_stop at its next
+// tick), stops the process at once.
+void WatchSignals(sigset_t signals) {
+  int sig = 0;
+  if (sigwait(&signals, &sig) != 0) return;
+  g_stop = true;
+  std::cerr << "gonio-acquire: " << (sig == SIGTERM ? "SIGTERM" : "SIGINT")
+            << ": pausing after the point in hand (a second signal stops at once)" << std::endl;
+  constexpr double kTickS = 0.1, kOutageGraceS = 1.0;
+  const timespec tick{0, static_cast<long>(kTickS * 1e9)};
+  for (double waited = 0;; waited += kTickS) {
+    if (sigtimedwait(&signals, nullptr, &tick) > 0) StopNow("a second signal");
+    if (g_waiting && waited >= kOutageGraceS) StopNow("a device fault is being waited out");
+  }
+}
 
 int Fail(const Error& e) {
   std::cerr << "gonio-acquire: " << e.ToString() << "\n";
@@ -134,6 +181,8 @@ double SteadyS() {
 // and its end once, when a point is stored.
 int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConfig& cfg,
             std::int64_t run_id, const Plan& plan, const Retry& retry) {
+  g_store = &store;
+  g_run = run_id;
   EngineOptions eo;
   eo.linear_limit_adu = cfg.camera.linear_limit_adu;
   eo.axes = cfg.axes;  // prices an adaptive run's moves against its budget
@@ -159,36 +208,49 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
   };
   for (;;) {
     const Status s = engine.Run(run_id, plan, g_stop, on_point);
+    g_waiting = false;
     if (s.ok()) break;
-    if (s.error().code == ErrorCode::kAborted || g_stop || retry.give_up_s <= 0)
-      return Fail(s.error());
-    const double now = SteadyS();
-    if (outage_since < 0) outage_since = now;
-    if (now - outage_since > retry.give_up_s) {
-      std::cerr << "gonio-acquire: the device fault did not clear within "
-                << Duration(retry.give_up_s) << " (--give-up-s); run " << run_id
-                << " is paused: gonio-acquire ... resume " << run_id << "\n";
-      return Fail(s.error());
+    {
+      const std::lock_guard reporting(g_exit);
+      // A signal during a fault: the run is paused as a signal pauses it (exit 3 below).
+      if (g_stop && s.error().code != ErrorCode::kAborted) {
+        std::cerr << "gonio-acquire: " << s.error().ToString() << "\n";
+        break;
+      }
+      if (s.error().code == ErrorCode::kAborted || retry.give_up_s <= 0) return Fail(s.error());
+      const double now = SteadyS();
+      if (outage_since < 0) outage_since = now;
+      if (now - outage_since > retry.give_up_s) {
+        std::cerr << "gonio-acquire: the device fault did not clear within "
+                  << Duration(retry.give_up_s) << " (--give-up-s); run " << run_id
+                  << " is paused: gonio-acquire ... resume " << run_id << "\n";
+        return Fail(s.error());
+      }
+      if (s.error().message != outage) {
+        std::cout << "device fault, run " << run_id << " paused and tried again every "
+                  << Duration(retry.every_s) << " for at most " << Duration(retry.give_up_s)
+                  << " (--give-up-s): " << s.error().ToString() << std::endl;
+        outage = s.error().message;
+      }
     }
-    if (s.error().message != outage) {
-      std::cout << "device fault, run " << run_id << " paused and tried again every "
-                << Duration(retry.every_s) << " for at most " << Duration(retry.give_up_s)
-                << " (--give-up-s): " << s.error().ToString() << std::endl;
-      outage = s.error().message;
-    }
-    // A signal during the wait pauses the run as it would mid-run (exit 3 below).
+    // A signal during the wait pauses the run as it would mid-run (exit 3 below); one during the
+    // next attempt, which a device that does not answer can hold for many seconds, stops the
+    // process (WatchSignals).
+    g_waiting = true;
     for (double waited = 0; waited < retry.every_s && !g_stop; waited += 0.05)
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
     if (g_stop) break;
   }
+  const std::lock_guard reporting(g_exit);
   auto info = store.GetRun(run_id);
-  if (info.ok() && info->status == RunStatus::kPaused) {
-    std::cout << "run " << run_id << " paused after " << info->points_done
-              << " points; continue with: gonio-acquire ... resume " << run_id << "\n";
-    return 3;
+  if (!info.ok()) return Fail(info.error());
+  if (info->status == RunStatus::kDone) {
+    std::cout << "run " << run_id << " done\n";
+    return 0;
   }
-  std::cout << "run " << run_id << " done\n";
-  return 0;
+  std::cout << "run " << run_id << " paused after " << info->points_done
+            << " points; continue with: gonio-acquire ... resume " << run_id << "\n";
+  return 3;
 }
 
 }  // namespace
@@ -241,8 +303,14 @@ int main(int argc, char** argv) {
   }
 
   // From here on a signal pauses instead of killing: the run is stopped after its current point.
-  std::signal(SIGINT, OnSignal);
-  std::signal(SIGTERM, OnSignal);
+  // Blocked before any thread starts (the camera's), so that every thread inherits the mask and
+  // only the watcher takes them.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  std::thread(WatchSignals, signals).detach();
   auto db = Storage::Open(db_path);
   if (!db.ok()) return Fail(db.error());
   Storage& store = **db;
@@ -286,6 +354,7 @@ int main(int argc, char** argv) {
     auto opened = daemon::OpenInstrument(*cfg, *specimens);
     if (!opened.ok()) return Fail(opened.error());
     in = std::move(opened).value();
+    g_stages = in.stages.get();
   }
   const PlanContext& ctx = in.context;
   auto plan = *resume_cmd ? LoadPlanText(stored_plan, plan_file, ctx) : LoadPlan(plan_file, ctx);

@@ -187,15 +187,12 @@ int main(int argc, char** argv) {
               << kGraceS
               << " s (not answering?): exiting without it; the run resumes at the next start"
               << std::endl;
-    auto stopped = std::async(std::launch::async, [&in] { return in.stages->StopAll(); });
-    const bool answered =
-        stopped.wait_for(std::chrono::duration<double>(kStopWaitS)) == std::future_status::ready &&
-        stopped.get().ok();
+    const bool answered = daemon::StopStagesWithin(*in.stages, kStopWaitS);
     std::cout << Timestamp() << " [state] "
               << (answered ? "stages stopped"
                            : "the stages did not confirm STOP: they may still be moving")
               << "; stopped without waiting for the worker" << std::endl;
-    std::_Exit(0);  // the worker and the futures are not waited for
+    std::_Exit(0);  // the worker and the stop request are not waited for
   }
   (*api)->Stop();
   logger.join();

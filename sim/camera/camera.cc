@@ -127,12 +127,17 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_EXPOSURE_TIME_US, 100000);
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_GAIN_RAW, 0);
   // The fake camera itself always waits for a software trigger: the firmware gives it one when
-  // a frame is ready, whatever the client's TriggerMode. It looks for one every millisecond.
+  // a frame is ready, whatever the client's TriggerMode. It looks for one at this rate. Its thread
+  // (arvgvfakecamera.c) polls its sockets for the whole milliseconds left to the next look and
+  // spins (poll with timeout 0) through the last partial one: at 1000 Hz it spun all the time,
+  // half of gonio-sim's CPU by perf. At 100 Hz it sleeps 9 ms of 10, and a ready frame leaves at
+  // most 10 ms (real) later.
   cam->SetReg(camera_reg::kTimestampTickFrequencyHigh, 0);
   cam->SetReg(camera_reg::kTimestampTickFrequencyLow, 1000000000);
   cam->SetReg(kFakeTriggerMode, 1);
   cam->SetReg(kFakeTriggerSource, 1);
-  arv_fake_camera_set_trigger_frequency(fake, 1000.0);
+  constexpr double kTriggerLookHz = 100;
+  arv_fake_camera_set_trigger_frequency(fake, kTriggerLookHz);
   cam->SetReg(camera_reg::kTriggerMode, 0);
   cam->SetReg(camera_reg::kBlackLevel, static_cast<std::uint32_t>(o.sensor_options.bias_adu));
   cam->SetReg(camera_reg::kSetpoint, static_cast<std::uint32_t>(-20000));

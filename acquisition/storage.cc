@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <mutex>
 
@@ -669,11 +670,24 @@ Result<std::vector<FitRecord>> Storage::FitResults(std::int64_t run) {
 
 Status Storage::ExportCsv(std::int64_t run, const std::string& path) {
   std::lock_guard guard(mu_);
-  std::ofstream out(path);
-  if (!out) return Error{ErrorCode::kIo, "cannot write " + path};
-  if (Status s = ExportCsv(run, out); !s.ok()) return s;
-  if (!out) return Error{ErrorCode::kIo, "writing " + path + " failed"};
-  return OkStatus();
+  // Written beside the file and renamed over it once whole: an export that fails (an unknown
+  // run, a full disk) or is interrupted leaves an earlier export of that name as it was.
+  const std::string partial = path + ".partial";
+  Status s = [&]() -> Status {
+    std::ofstream out(partial);
+    if (!out) return Error{ErrorCode::kIo, "cannot write " + partial};
+    if (Status e = ExportCsv(run, out); !e.ok()) return e;
+    out.close();
+    if (!out) return Error{ErrorCode::kIo, "writing " + partial + " failed"};
+    return OkStatus();
+  }();
+  std::error_code ec;
+  if (s.ok()) {
+    std::filesystem::rename(partial, path, ec);
+    if (ec) s = Error{ErrorCode::kIo, "renaming " + partial + " to " + path + ": " + ec.message()};
+  }
+  if (!s.ok()) std::filesystem::remove(partial, ec);
+  return s;
 }
 
 Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {

@@ -181,7 +181,8 @@ class Storage {
 
   // The run's measurements as the fitter's CSV (fitting/samples_csv.h): theta_l_deg, theta_v_deg,
   // phi_l_deg, phi_v_deg, value, sigma, then the raw statistics and each point's side
-  // (transmission or reflection).
+  // (transmission or reflection). To a path: written whole or not at all (an error leaves an
+  // earlier file of that name unchanged).
   Status ExportCsv(std::int64_t run, const std::string& path);
   Status ExportCsv(std::int64_t run, std::ostream& out);  // the same CSV to a stream
 

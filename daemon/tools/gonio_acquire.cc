@@ -302,15 +302,18 @@ int main(int argc, char** argv) {
     return app.exit(e) == 0 ? 0 : 2;
   }
 
-  // From here on a signal pauses instead of killing: the run is stopped after its current point.
-  // Blocked before any thread starts (the camera's), so that every thread inherits the mask and
-  // only the watcher takes them.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-  std::thread(WatchSignals, signals).detach();
+  // From here on a signal to a measurement pauses instead of killing: the run is stopped after
+  // its current point. Blocked before any thread starts (the camera's), so that every thread
+  // inherits the mask and only the watcher takes them. Export, status and a dry run keep the
+  // default: a signal ends them (they change nothing, or one transaction).
+  if ((*run_cmd || *resume_cmd) && !dry_run) {
+    sigset_t signals;
+    sigemptyset(&signals);
+    sigaddset(&signals, SIGINT);
+    sigaddset(&signals, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+    std::thread(WatchSignals, signals).detach();
+  }
   auto db = Storage::Open(db_path);
   if (!db.ok()) return Fail(db.error());
   Storage& store = **db;

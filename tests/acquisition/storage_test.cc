@@ -6,6 +6,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <sstream>
 #include <string>
 
@@ -280,6 +281,27 @@ TEST_F(StorageTest, ExportIsReadByTheFittersCsvReader) {
   EXPECT_EQ((*samples)[2].value, 102);
   EXPECT_EQ((*samples)[2].sigma, 0.1);
   EXPECT_FALSE((*samples)[2].background_subtracted);  // none measured: a floor may be fitted
+}
+
+// An export that fails leaves an earlier file of that name as it was, and nothing beside it: here
+// a run that does not exist, as a typo in `gonio-acquire export RUN --out run.csv` would be.
+TEST_F(StorageTest, AFailedExportLeavesAnEarlierFileUnchanged) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  const auto run = NewRun(**s, 2);
+  for (int k = 0; k < 2; ++k) ASSERT_TRUE((*s)->StoreMeasurement(run, M(k, 100 + k)).ok());
+  const std::string csv = path + ".csv";
+  ASSERT_TRUE((*s)->ExportCsv(run, csv).ok());
+  std::ifstream first(csv);
+  const std::string before((std::istreambuf_iterator<char>(first)), {});
+  ASSERT_NE(before.find("\n"), std::string::npos);
+  const Status failed = (*s)->ExportCsv(run + 7, csv);
+  EXPECT_FALSE(failed.ok());
+  std::ifstream again(csv);
+  const std::string after((std::istreambuf_iterator<char>(again)), {});
+  EXPECT_EQ(after, before);
+  EXPECT_FALSE(std::filesystem::exists(csv + ".partial"));
+  std::filesystem::remove(csv);
 }
 
 // A measured background (schema 7) is stored with its sigma, read back, exported in its columns,

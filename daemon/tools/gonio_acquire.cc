@@ -190,6 +190,7 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
   double outage_since = -1;  // steady seconds; < 0: none
   std::string outage;        // the fault printed for it
   const auto on_point = [&](const Progress& p) {
+    g_waiting = false;  // measuring again: a signal now waits for the point in hand
     if (outage_since >= 0) {
       std::printf("measuring again after %s (the device fault cleared)\n",
                   Duration(SteadyS() - outage_since).c_str());
@@ -235,7 +236,7 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
     }
     // A signal during the wait pauses the run as it would mid-run (exit 3 below); one during the
     // next attempt, which a device that does not answer can hold for many seconds, stops the
-    // process (WatchSignals).
+    // process (WatchSignals), until that attempt stores a point.
     g_waiting = true;
     for (double waited = 0; waited < retry.every_s && !g_stop; waited += 0.05)
       std::this_thread::sleep_for(std::chrono::milliseconds(50));

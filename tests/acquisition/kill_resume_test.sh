@@ -130,8 +130,9 @@ acq --db "$work/int.sqlite" resume 1 >> "$work/int.log"
 [[ $(q "$work/int.sqlite" "select count(*) from measurements") == "$total" ]]
 
 # The instrument power-cycled mid-run (gonio-sim stopped, gone 2 s, started again on its ports):
-# gonio-acquire waits for it and finishes by itself, as goniod does, saying so once each way; its
-# points agree with the uninterrupted run's.
+# gonio-acquire waits for it and measures again by itself, as goniod does, saying so once each
+# way; its points agree with the uninterrupted run's. Once it measures again, a signal pauses it
+# after the point in hand as usual (not at once, as during the outage); a resume finishes it.
 start "$work/cycle.log" --db "$work/cycle.sqlite" --retry-s 0.5 run "$work/plan.toml"
 for _ in $(seq 600); do
   [[ $(q "$work/cycle.sqlite" "select count(*) from measurements" 2>/dev/null || echo 0) -ge 2 ]] &&
@@ -141,11 +142,17 @@ done
 stop_gonio_sim
 sleep 2
 restart_gonio_sim "$sim" 40 "$work"
+for _ in $(seq 1200); do grep -q "^measuring again" "$work/cycle.log" && break; sleep 0.05; done
+kill -INT $victim
 set +e
 wait $victim
 rc=$?
 set -e
-[[ $rc == 0 ]] || { echo "after a power cycle: exit $rc"; tail -5 "$work/cycle.log"; exit 1; }
+[[ $rc == 3 ]] || { echo "after a power cycle, SIGINT: exit $rc"; tail -5 "$work/cycle.log"; exit 1; }
+[[ $(q "$work/cycle.sqlite" "select count(*) from run_events where detail like 'stopped at once%'") == 0 ]] ||
+  { echo "a signal after the outage stopped at once, not after the point"; cat "$work/cycle.log"; exit 1; }
+acq --db "$work/cycle.sqlite" resume >> "$work/cycle.log" ||
+  { echo "the resume after the power cycle failed"; tail -5 "$work/cycle.log"; exit 1; }
 [[ $(grep -c "^device fault, run 1 paused " "$work/cycle.log") -ge 1 ]] ||
   { echo "the outage was not reported:"; cat "$work/cycle.log"; exit 1; }
 [[ $(grep -c "^measuring again after " "$work/cycle.log") == 1 ]] ||

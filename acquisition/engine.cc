@@ -539,7 +539,8 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     if (err.code == ErrorCode::kAborted && Interrupted()) {
       (void)db_.AddEvent(run, "paused",
                          "interrupted during point " + std::to_string(index) +
-                             " (a daemon stop): its frames so far are discarded; it stays pending");
+                             " (a stop that does not wait for it): its frames so far are "
+                             "discarded; it stays pending");
       (void)db_.SetRunStatus(run, RunStatus::kPaused);
       return Error{ErrorCode::kAborted, "interrupted"};
     }

@@ -8,9 +8,10 @@
 //   gonio-acquire --db runs.sqlite status RUN
 //
 // Ctrl-C (SIGINT) or SIGTERM pauses after the current point is stored; resume continues it. A
-// second signal, or one while a device fault is waited out, stops it at once without waiting on
-// devices that may not answer: the stages are told to stop, the point in hand (if any) is left
-// pending, and resume continues the run (every stored point is its own transaction).
+// second signal, or one while a device fault is waited out, stops the point in hand as goniod's
+// SIGTERM does (its exposure abandoned, the point left pending, the run paused), and does not wait
+// more than 2 s on a device that does not answer: the stages are then told to stop and the
+// process exits (every stored point is its own transaction; resume continues the run).
 // A device fault that the drivers' own retries did not clear (a device restarted, a cable
 // pulled) pauses the run, which is tried again every --retry-s until it measures again, as goniod
 // does, for at most --give-up-s (0: stop at the first fault).
@@ -43,19 +44,22 @@ namespace {
 using namespace gonio;
 using namespace gonio::acquisition;
 
-std::atomic<bool> g_stop{false};     // a signal came: pause after the point in hand
-std::atomic<bool> g_waiting{false};  // no point in hand: a device fault is being waited out
+std::atomic<bool> g_stop{false};       // a signal came: pause after the point in hand
+std::atomic<bool> g_interrupt{false};  // do not wait for the point in hand (Engine::InterruptOn)
+std::atomic<bool> g_waiting{false};    // no point in hand: a device fault is being waited out
 std::atomic<devices::StageController*> g_stages{nullptr};
 std::atomic<Storage*> g_store{nullptr};  // with g_run, the run StopNow leaves paused
 std::atomic<std::int64_t> g_run{0};
 std::mutex g_exit;  // held by StopNow to the end: the measuring thread does not report meanwhile
 
-// Exits (3, paused by a signal) without waiting for the measuring thread, which may be held for
-// tens of seconds by a device that does not answer (Aravis' connect retries, a Modbus timeout).
-[[noreturn]] void StopNow(const char* why) {
+// Exits (3, paused by a signal) without waiting for the measuring thread, which a device that does
+// not answer can hold for tens of seconds where no interrupt reaches (Aravis' connect retries, a
+// Modbus timeout).
+[[noreturn]] void StopNow(const std::string& why) {
   g_exit.lock();
-  std::cerr << "gonio-acquire: " << why << ": stopping now; the point in hand, if any, is left "
-            << "pending (gonio-acquire ... resume continues the run)" << std::endl;
+  std::cerr << "gonio-acquire: " << why << ": still waiting on a device, exiting without it; "
+            << "the point in hand, if any, is left pending (gonio-acquire ... resume continues "
+            << "the run)" << std::endl;
   if (devices::StageController* stages = g_stages.load()) {
     constexpr double kStopWaitS = 1.5;
     if (!daemon::StopStagesWithin(*stages, kStopWaitS))
@@ -65,27 +69,37 @@ std::mutex g_exit;  // held by StopNow to the end: the measuring thread does not
   // Storage is safe to share between threads; a point being stored meanwhile is one transaction,
   // in whole or not at all.
   if (Storage* store = g_store.load(); store != nullptr && g_run > 0) {
-    (void)store->AddEvent(g_run, "paused", std::string("stopped at once (") + why + ")");
+    (void)store->AddEvent(g_run, "paused", "stopped at once (" + why + ")");
     (void)store->SetRunStatus(g_run, RunStatus::kPaused);
   }
   std::_Exit(3);
 }
 
+// Stops the point in hand as goniod's SIGTERM does: the engine abandons the exposure in progress
+// and leaves the run paused with the point pending, and the measuring thread then reports and
+// exits 3. A thread held where no interrupt reaches is not waited for beyond kGraceS (StopNow).
+[[noreturn]] void StopPointInHand(const std::string& why) {
+  std::cerr << "gonio-acquire: " << why << ": stopping the point in hand" << std::endl;
+  g_interrupt = true;
+  constexpr double kGraceS = 2.0;
+  std::this_thread::sleep_for(std::chrono::duration<double>(kGraceS));
+  StopNow(why);
+}
+
 // Takes SIGINT and SIGTERM (blocked in every thread) on a thread of its own. The first sets
 // g_stop, which the run and the cooling wait see between points; a second, or the first while a
-// device fault is waited out for longer than a moment (the retry loop sees g_stop at its next
-// tick), stops the process at once.
+// device fault is waited out, stops the point in hand (during the wait between two attempts the
+// retry loop sees g_stop first and pauses as usual).
 void WatchSignals(sigset_t signals) {
   int sig = 0;
   if (sigwait(&signals, &sig) != 0) return;
   g_stop = true;
   std::cerr << "gonio-acquire: " << (sig == SIGTERM ? "SIGTERM" : "SIGINT")
             << ": pausing after the point in hand (a second signal stops at once)" << std::endl;
-  constexpr double kTickS = 0.1, kOutageGraceS = 1.0;
-  const timespec tick{0, static_cast<long>(kTickS * 1e9)};
-  for (double waited = 0;; waited += kTickS) {
-    if (sigtimedwait(&signals, nullptr, &tick) > 0) StopNow("a second signal");
-    if (g_waiting && waited >= kOutageGraceS) StopNow("a device fault is being waited out");
+  const timespec tick{0, 100'000'000};
+  for (;;) {
+    if (g_waiting) StopPointInHand("a device fault is being waited out");
+    if (sigtimedwait(&signals, nullptr, &tick) > 0) StopPointInHand("a second signal");
   }
 }
 
@@ -187,6 +201,7 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
   eo.linear_limit_adu = cfg.camera.linear_limit_adu;
   eo.axes = cfg.axes;  // prices an adaptive run's moves against its budget
   Engine engine(*in.stages, *in.camera, in.monitor.monitor.get(), store, eo);
+  engine.InterruptOn(&g_interrupt);
   double outage_since = -1;  // steady seconds; < 0: none
   std::string outage;        // the fault printed for it
   const auto on_point = [&](const Progress& p) {

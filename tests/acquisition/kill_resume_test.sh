@@ -129,6 +129,47 @@ set -e
 acq --db "$work/int.sqlite" resume 1 >> "$work/int.log"
 [[ $(q "$work/int.sqlite" "select count(*) from measurements") == "$total" ]]
 
+# A second SIGINT does not wait for the point in hand: on the flank, where each of its frames is
+# a 20 s exposure (0.5 s here), the signals land just after a point is stored, and the next one is
+# abandoned (its event says so), the run paused within a second or two.
+cat > "$work/long.toml" <<'PLAN'
+sample = "ground-glass-G1"
+[geometry]
+incidence_deg = [0]
+view_about = "refracted"
+view_from_deg = -20
+view_to_deg = -15
+view_step_deg = 2.5
+[exposure]
+frames = 4
+initial_s = 20
+max_s = 20
+[rectangle]
+x = 253
+y = 246
+width = 6
+height = 19
+PLAN
+start "$work/long.log" --db "$work/long.sqlite" run "$work/long.toml"
+wait_for_run "$work/long.log" "$work/long.sqlite"
+for _ in $(seq 600); do
+  [[ $(q "$work/long.sqlite" "select count(*) from measurements") -ge 1 ]] && break
+  sleep 0.02
+done
+kill -INT $victim
+sleep 0.2
+t0=$(date +%s%N)
+kill -INT $victim
+rc=0
+wait $victim || rc=$?
+twice_live_ms=$((($(date +%s%N) - t0) / 1000000))
+[[ $rc == 3 ]] || { echo "two SIGINTs gave exit $rc, expected 3"; cat "$work/long.log"; exit 1; }
+[[ $(q "$work/long.sqlite" "select status from runs") == paused ]]
+[[ $(q "$work/long.sqlite" "select count(*) from run_events where detail like 'interrupted during point%'") == 1 ]] ||
+  { echo "the second SIGINT did not interrupt the point in hand"; cat "$work/long.log"; exit 1; }
+((twice_live_ms < 2000)) ||
+  { echo "the second SIGINT took $twice_live_ms ms to stop the point in hand"; exit 1; }
+
 # The instrument power-cycled mid-run (gonio-sim stopped, gone 2 s, started again on its ports):
 # gonio-acquire waits for it and measures again by itself, as goniod does, saying so once each
 # way; its points agree with the uninterrupted run's. Once it measures again, a signal pauses it
@@ -149,8 +190,9 @@ wait $victim
 rc=$?
 set -e
 [[ $rc == 3 ]] || { echo "after a power cycle, SIGINT: exit $rc"; tail -5 "$work/cycle.log"; exit 1; }
-[[ $(q "$work/cycle.sqlite" "select count(*) from run_events where detail like 'stopped at once%'") == 0 ]] ||
-  { echo "a signal after the outage stopped at once, not after the point"; cat "$work/cycle.log"; exit 1; }
+[[ $(q "$work/cycle.sqlite" "select count(*) from run_events where detail like 'stopped at once%'
+      or detail like 'interrupted during point%'") == 0 ]] ||
+  { echo "a signal after the outage stopped the point in hand"; cat "$work/cycle.log"; exit 1; }
 acq --db "$work/cycle.sqlite" resume >> "$work/cycle.log" ||
   { echo "the resume after the power cycle failed"; tail -5 "$work/cycle.log"; exit 1; }
 [[ $(grep -c "^device fault, run 1 paused " "$work/cycle.log") -ge 1 ]] ||
@@ -211,8 +253,9 @@ why=$(q "$ad" "select detail from run_events where kind = 'adaptive'")
 
 # Signals with the instrument gone: gonio-acquire does not wait on devices that do not answer
 # (it once ignored SIGTERM for many seconds, held by the camera's reconnects). A second signal
-# stops it at once; one while a device fault is waited out does too. Either way it exits 3 within
-# seconds with the run paused, and a resume on the instrument back finishes it.
+# stops the point in hand; one while a device fault is waited out does too. Either way it exits 3
+# within seconds with the run paused (interrupted, or after 2 s without the thread a device holds),
+# and a resume on the instrument back finishes it.
 # Waits for a fresh run of $work/plan.toml in DB to store N points (up to 30 s).
 wait_points() {
   local db=$1 n=$2
@@ -222,7 +265,8 @@ wait_points() {
   done
   echo "$db: fewer than $n points after 30 s"; exit 1
 }
-# Sends SIGTERM and checks that the victim stopped within 5 s, exit 3, its run in DB paused; sets
+# Sends SIGTERM and checks that the victim stopped within 8 s (2 s for the point in hand, 1.5 s for
+# the stages' STOP, and a loaded CI's slack), exit 3, its run in DB paused; sets
 # ms (from the signal to the exit). WHAT names the case in a failure.
 # Usage: term_stops DB WHAT
 term_stops() {
@@ -232,7 +276,7 @@ term_stops() {
   wait $victim || rc=$?
   ms=$((($(date +%s%N) - t0) / 1000000))
   [[ $rc == 3 ]] || { echo "$what: exit $rc, expected 3"; cat "$work/gone.log"; exit 1; }
-  ((ms < 5000)) || { echo "$what: $ms ms to stop"; cat "$work/gone.log"; exit 1; }
+  ((ms < 8000)) || { echo "$what: $ms ms to stop"; cat "$work/gone.log"; exit 1; }
   [[ $(q "$db" "select status from runs") == paused ]] ||
     { echo "$what: the run is $(q "$db" "select status from runs"), not paused"; exit 1; }
 }
@@ -254,9 +298,6 @@ grep -q "^device fault" "$work/gone.log" ||
   { echo "the instrument's loss was not reported within 60 s"; cat "$work/gone.log"; exit 1; }
 sleep 0.5
 term_stops "$gone" "a signal while a device fault is waited out"
-[[ $(q "$gone" "select count(*) from run_events where kind = 'paused'
-                and detail = 'stopped at once (a device fault is being waited out)'") == 1 ]] ||
-  { echo "the stop during a device fault is not in the run's events"; exit 1; }
 restart_gonio_sim "$sim" 40 "$work"
 acq --db "$gone" resume >> "$work/gone.log" ||
   { echo "the resume after the signals failed"; tail -5 "$work/gone.log"; exit 1; }
@@ -266,5 +307,5 @@ acq --db "$gone" resume >> "$work/gone.log" ||
 echo "$kills kills, $resumes resumes: $total points, none lost or repeated, all within 5 sigma;" \
   "a power cycle mid-run waited out; an adaptive run killed $akills times chose $chosen points," \
   "each logged once, and stopped: $why; with the instrument gone, two signals stopped it in" \
-  "$twice_ms ms and one during a device fault in $ms ms"
+  "$twice_ms ms and one during a device fault in $ms ms; with it there, two in $twice_live_ms ms"
 

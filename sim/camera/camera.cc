@@ -126,14 +126,14 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT, ARV_PIXEL_FORMAT_MONO_16);
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_EXPOSURE_TIME_US, 100000);
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_GAIN_RAW, 0);
+  cam->SetReg(camera_reg::kTimestampTickFrequencyHigh, 0);
+  cam->SetReg(camera_reg::kTimestampTickFrequencyLow, 1000000000);
   // The fake camera itself always waits for a software trigger: the firmware gives it one when
   // a frame is ready, whatever the client's TriggerMode. It looks for one at this rate. Its thread
   // (arvgvfakecamera.c) polls its sockets for the whole milliseconds left to the next look and
   // spins (poll with timeout 0) through the last partial one: at 1000 Hz it spun all the time,
   // half of gonio-sim's CPU by perf. At 100 Hz it sleeps 9 ms of 10, and a ready frame leaves at
   // most 10 ms (real) later.
-  cam->SetReg(camera_reg::kTimestampTickFrequencyHigh, 0);
-  cam->SetReg(camera_reg::kTimestampTickFrequencyLow, 1000000000);
   cam->SetReg(kFakeTriggerMode, 1);
   cam->SetReg(kFakeTriggerSource, 1);
   constexpr double kTriggerLookHz = 100;

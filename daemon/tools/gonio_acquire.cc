@@ -67,10 +67,12 @@ std::mutex g_exit;  // held by StopNow to the end: the measuring thread does not
                 << std::endl;
   }
   // Storage is safe to share between threads; a point being stored meanwhile is one transaction,
-  // in whole or not at all.
+  // in whole or not at all. A run that finished meanwhile stays done.
   if (Storage* store = g_store.load(); store != nullptr && g_run > 0) {
-    (void)store->AddEvent(g_run, "paused", "stopped at once (" + why + ")");
-    (void)store->SetRunStatus(g_run, RunStatus::kPaused);
+    if (auto info = store->GetRun(g_run); info.ok() && info->status != RunStatus::kDone) {
+      (void)store->AddEvent(g_run, "paused", "stopped at once (" + why + ")");
+      (void)store->SetRunStatus(g_run, RunStatus::kPaused);
+    }
   }
   std::_Exit(3);
 }

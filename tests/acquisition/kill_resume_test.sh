@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # A run killed with SIGKILL at random moments, again and again, then resumed, ends with the same
 # points as an uninterrupted run: none twice, none missing, each value within its uncertainty of
-# the uninterrupted run's (the noise differs, the data must not). Then SIGINT pauses cleanly, a
-# power cycle of the instrument mid-run is waited out (the run finishes by itself), and signals
-# with the instrument gone stop it within seconds.
+# the uninterrupted run's (the noise differs, the data must not). Then SIGINT pauses cleanly and a
+# second one stops the point in hand, a power cycle of the instrument mid-run is waited out (the
+# run measures again by itself), and signals with the instrument gone stop it within seconds.
 # Usage: kill_resume_test.sh GONIO_SIM GONIO_ACQUIRE SOURCE_DIR WORKDIR
 set -euo pipefail
 sim=$1 acq=$2 src=$3 work=$4
@@ -99,6 +99,17 @@ wait_for_run() {
   cat "$log"
   exit 1
 }
+# Waits until DB has stored N points (up to 30 s); as wait_for_run, never creates DB.
+# Usage: wait_points DB N
+wait_points() {
+  local db=$1 n=$2
+  for _ in $(seq 600); do
+    [[ -s "$db" && $(q "$db" "select count(*) from measurements" 2>/dev/null || echo 0) -ge $n ]] &&
+      return 0
+    sleep 0.05
+  done
+  echo "$db: fewer than $n points after 30 s"; exit 1
+}
 start "$work/kill.log" --db "$work/kill.sqlite" run "$work/plan.toml"
 wait_for_run "$work/kill.log" "$work/kill.sqlite"
 kill_and_resume "$work/kill.log" "$work/kill.sqlite" 1.3 4.4 3.9 4.8
@@ -151,11 +162,7 @@ width = 6
 height = 19
 PLAN
 start "$work/long.log" --db "$work/long.sqlite" run "$work/long.toml"
-wait_for_run "$work/long.log" "$work/long.sqlite"
-for _ in $(seq 600); do
-  [[ $(q "$work/long.sqlite" "select count(*) from measurements") -ge 1 ]] && break
-  sleep 0.02
-done
+wait_points "$work/long.sqlite" 1
 kill -INT $victim
 sleep 0.2
 t0=$(date +%s%N)
@@ -175,11 +182,7 @@ twice_live_ms=$((($(date +%s%N) - t0) / 1000000))
 # way; its points agree with the uninterrupted run's. Once it measures again, a signal pauses it
 # after the point in hand as usual (not at once, as during the outage); a resume finishes it.
 start "$work/cycle.log" --db "$work/cycle.sqlite" --retry-s 0.5 run "$work/plan.toml"
-for _ in $(seq 600); do
-  [[ $(q "$work/cycle.sqlite" "select count(*) from measurements" 2>/dev/null || echo 0) -ge 2 ]] &&
-    break
-  sleep 0.05
-done
+wait_points "$work/cycle.sqlite" 2
 stop_gonio_sim
 sleep 2
 restart_gonio_sim "$sim" 40 "$work"
@@ -256,27 +259,18 @@ why=$(q "$ad" "select detail from run_events where kind = 'adaptive'")
 # stops the point in hand; one while a device fault is waited out does too. Either way it exits 3
 # within seconds with the run paused (interrupted, or after 2 s without the thread a device holds),
 # and a resume on the instrument back finishes it.
-# Waits for a fresh run of $work/plan.toml in DB to store N points (up to 30 s).
-wait_points() {
-  local db=$1 n=$2
-  for _ in $(seq 600); do
-    [[ $(q "$db" "select count(*) from measurements" 2>/dev/null || echo 0) -ge $n ]] && return 0
-    sleep 0.05
-  done
-  echo "$db: fewer than $n points after 30 s"; exit 1
-}
 # Sends SIGTERM and checks that the victim stopped within 8 s (2 s for the point in hand, 1.5 s for
-# the stages' STOP, and a loaded CI's slack), exit 3, its run in DB paused; sets
-# ms (from the signal to the exit). WHAT names the case in a failure.
-# Usage: term_stops DB WHAT
+# the stages' STOP, and a loaded CI's slack), exit 3, its run in DB paused; sets ms (from the
+# signal to the exit). WHAT names the case in a failure, which shows LOG.
+# Usage: term_stops LOG DB WHAT
 term_stops() {
-  local db=$1 what=$2 t0 rc=0
+  local log=$1 db=$2 what=$3 t0 rc=0
   t0=$(date +%s%N)
   kill -TERM $victim 2>/dev/null || true
   wait $victim || rc=$?
   ms=$((($(date +%s%N) - t0) / 1000000))
-  [[ $rc == 3 ]] || { echo "$what: exit $rc, expected 3"; cat "$work/gone.log"; exit 1; }
-  ((ms < 8000)) || { echo "$what: $ms ms to stop"; cat "$work/gone.log"; exit 1; }
+  [[ $rc == 3 ]] || { echo "$what: exit $rc, expected 3"; cat "$log"; exit 1; }
+  ((ms < 8000)) || { echo "$what: $ms ms to stop"; cat "$log"; exit 1; }
   [[ $(q "$db" "select status from runs") == paused ]] ||
     { echo "$what: the run is $(q "$db" "select status from runs"), not paused"; exit 1; }
 }
@@ -287,7 +281,7 @@ stop_gonio_sim
 sleep 0.5
 kill -TERM $victim  # the first: pause after the point in hand, which waits on the camera
 sleep 1
-term_stops "$gone" "a second signal with the instrument gone"
+term_stops "$work/gone.log" "$gone" "a second signal with the instrument gone"
 twice_ms=$ms
 restart_gonio_sim "$sim" 40 "$work"
 start "$work/gone.log" --db "$gone" --retry-s 0.5 resume
@@ -297,7 +291,7 @@ for _ in $(seq 1200); do grep -q "^device fault" "$work/gone.log" && break; slee
 grep -q "^device fault" "$work/gone.log" ||
   { echo "the instrument's loss was not reported within 60 s"; cat "$work/gone.log"; exit 1; }
 sleep 0.5
-term_stops "$gone" "a signal while a device fault is waited out"
+term_stops "$work/gone.log" "$gone" "a signal while a device fault is waited out"
 restart_gonio_sim "$sim" 40 "$work"
 acq --db "$gone" resume >> "$work/gone.log" ||
   { echo "the resume after the signals failed"; tail -5 "$work/gone.log"; exit 1; }

@@ -143,24 +143,12 @@ acq --db "$work/int.sqlite" resume 1 >> "$work/int.log"
 # A second SIGINT does not wait for the point in hand: on the flank, where each of its frames is
 # a 20 s exposure (0.5 s here), the signals land just after a point is stored, and the next one is
 # abandoned (its event says so), the run paused within a second or two.
-cat > "$work/long.toml" <<'PLAN'
-sample = "ground-glass-G1"
-[geometry]
-incidence_deg = [0]
-view_about = "refracted"
-view_from_deg = -20
-view_to_deg = -15
-view_step_deg = 2.5
-[exposure]
-frames = 4
-initial_s = 20
-max_s = 20
-[rectangle]
-x = 253
-y = 246
-width = 6
-height = 19
-PLAN
+# The test's plan moved to the flank of one incidence, at the longest exposure from the start.
+sed -e 's/^incidence_deg = .*/incidence_deg = [0]/' -e 's/^view_from_deg = .*/view_from_deg = -20/' \
+  -e 's/^view_to_deg = .*/view_to_deg = -15/' -e 's/^view_step_deg = .*/view_step_deg = 2.5/' \
+  -e 's/^frames = .*/frames = 4/' -e 's/^initial_s = .*/initial_s = 20\nmax_s = 20/' \
+  "$work/plan.toml" > "$work/long.toml"
+grep -q '^max_s = 20$' "$work/long.toml" || { echo "the test's plan changed; update this test"; exit 1; }
 start "$work/long.log" --db "$work/long.sqlite" run "$work/long.toml"
 wait_points "$work/long.sqlite" 1
 kill -INT $victim

@@ -253,7 +253,7 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
     }
     // A signal during the wait pauses the run as it would mid-run (exit 3 below); one during the
     // next attempt, which a device that does not answer can hold for many seconds, stops the
-    // process (WatchSignals), until that attempt stores a point.
+    // point in hand (WatchSignals), until that attempt stores a point.
     g_waiting = true;
     for (double waited = 0; waited < retry.every_s && !g_stop; waited += 0.05)
       std::this_thread::sleep_for(std::chrono::milliseconds(50));

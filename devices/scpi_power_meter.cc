@@ -16,6 +16,11 @@ Result<std::string> ScpiPowerMeter::QueryWithReopen(const std::string& q) {
   return tmc_.Query(q);
 }
 
+Status ScpiPowerMeter::Clear() {
+  if (Status s = tmc_.Clear(); !s.ok()) return s;
+  return tmc_.Write("*CLS");
+}
+
 Result<std::string> ScpiPowerMeter::Identity() { return QueryWithReopen("*IDN?"); }
 
 Result<std::string> ScpiPowerMeter::NextError() { return QueryWithReopen("SYST:ERR?"); }

@@ -17,6 +17,11 @@ class ScpiPowerMeter final : public SourceMonitor {
   explicit ScpiPowerMeter(UsbTmcTransport& transport, int timeout_ms = 1000)
       : tmc_(transport, timeout_ms) {}
 
+  // Starts a session clean; call it once after opening. USBTMC INITIATE_CLEAR empties the
+  // meter's buffers, where a client that died mid-query (a killed process) can have left a
+  // response that the next query would read as its own; *CLS empties the error queue, so the
+  // first setting's check reads only its own error.
+  Status Clear();
   Result<std::string> Identity() override;
   Result<double> PowerW() override;
   Status SetWavelengthNm(double nm) override;

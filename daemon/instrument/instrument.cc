@@ -39,6 +39,8 @@ Result<OpenedMonitor> OpenMonitor(const config::InstrumentConfig& c) {
     m.transport = std::move(t).value();
   }
   auto meter = std::make_unique<devices::ScpiPowerMeter>(*m.transport, c.monitor.timeout_ms);
+  // A client that died mid-query (a killed gonio-acquire) can have left a response queued.
+  if (Status s = meter->Clear(); !s.ok()) return s.error();
   if (Status s = meter->SetWavelengthNm(c.monitor.wavelength_nm); !s.ok()) return s.error();
   if (Status s = meter->SetAveraging(c.monitor.averaging); !s.ok()) return s.error();
   m.monitor = std::move(meter);

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "backends/usbtmc_socket.h"
+#include "daemon/instrument/instrument.h"
 #include "devices/scpi_power_meter.h"
 #include "devices/usbtmc.h"
 #include "sim/clock.h"
@@ -211,6 +212,50 @@ TEST_F(PowerMeter, AServerThatRestartsOnItsPortIsReachedAgain) {
   ASSERT_TRUE(again.ok()) << again.error().message;
   auto back = meter.PowerW();
   EXPECT_TRUE(back.ok()) << back.error().message;
+}
+
+// A meter outlives its clients: a process killed between a query's request and its read (the
+// kill-and-resume test's SIGKILL did this in CI) leaves the response queued, and an earlier
+// mistake leaves an entry in the error queue. The next session's first setting used to read that
+// stale reading as its SYST:ERR? answer and refuse to open ("refused 'SENS:CORR:WAV 633':
+// 1.203293E-03"). Opening now clears the meter first.
+TEST_F(PowerMeter, OpeningTheMonitorStartsCleanAfterAClientThatDiedMidQuery) {
+  SimulatedPowerMeter dev(clock, lamp, {}, 1, nullptr);
+  auto server = MonitorSocketServer::Start(dev);
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  auto leave_stale = [&] {
+    auto earlier = backends::UsbTmcSocketTransport::Connect("127.0.0.1", (*server)->port());
+    ASSERT_TRUE(earlier.ok()) << earlier.error().message;
+    UsbTmc tmc(**earlier);
+    ASSERT_TRUE(tmc.Write("SENS:BOGUS 1").ok());  // -113 in the error queue
+    ASSERT_TRUE(tmc.Write("MEAS:POW?").ok());     // a response nobody reads
+  };  // the earlier client's socket closes here, as a killed process's would
+
+  // Without the clear the hazard is real: the stale reading answers the check of a setting.
+  leave_stale();
+  {
+    auto t = backends::UsbTmcSocketTransport::Connect("127.0.0.1", (*server)->port());
+    ASSERT_TRUE(t.ok()) << t.error().message;
+    ScpiPowerMeter unclear(**t);
+    EXPECT_FALSE(unclear.SetWavelengthNm(633).ok());
+  }
+
+  leave_stale();
+  config::InstrumentConfig c;
+  c.monitor.enabled = true;
+  c.monitor.transport = "socket";
+  c.monitor.port = (*server)->port();
+  c.monitor.wavelength_nm = 700;
+  c.monitor.averaging = 10;
+  auto opened = daemon::OpenMonitor(c);
+  ASSERT_TRUE(opened.ok()) << opened.error().message;
+  EXPECT_EQ(dev.wavelength_nm(), 700);
+  EXPECT_EQ(dev.averaging(), 10);
+  auto w = opened->monitor->PowerW();
+  ASSERT_TRUE(w.ok()) << w.error().message;
+  EXPECT_NEAR(*w, 2e-3, 1e-5);  // a reading of its own, near the lamp's 2 mW
+  ScpiPowerMeter check(*opened->transport);
+  EXPECT_EQ(*check.NextError(), "0,\"No error\"");  // the earlier -113 is gone
 }
 
 }  // namespace

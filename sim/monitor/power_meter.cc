@@ -123,6 +123,13 @@ Status SimulatedPowerMeter::BulkOut(const std::uint8_t* data, std::size_t n, int
   if (data[0] == usbtmc::kDevDepMsgOut) {
     if (size > n - usbtmc::kHeaderBytes)
       return Error{ErrorCode::kIo, "LIBUSB_ERROR_PIPE: TransferSize beyond the transfer"};
+    // A new program message while a response is still unread: IEEE 488.2 section 6.3.2.3's
+    // INTERRUPTED - the response is discarded and -410 queued (a client that died mid-query).
+    if (input_.empty() && !output_.empty()) {
+      output_.clear();
+      in_tag_.reset();
+      errors_.push_back("-410,\"Query INTERRUPTED\"");
+    }
     input_.append(reinterpret_cast<const char*>(data + usbtmc::kHeaderBytes), size);
     if (data[usbtmc::kAttributesAt] &
         usbtmc::kEom) {  // EOM: execute every complete line (';' separates commands too)

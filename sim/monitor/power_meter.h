@@ -6,8 +6,9 @@
 //
 // SCPI (case-insensitive, short or long forms): *IDN?, *RST, *CLS, MEAS[:SCAL]:POW? (W),
 // SENS:CORR:WAV <nm> / ? (400-1100), SENS:AVER[:COUN] <n> / ? (1-10000), SYST:ERR? (-113
-// undefined header, -222 data out of range). A reading is the lamp's power averaged over n
-// samples of 1 ms ending now, with the meter's own noise (1e-4 relative per sample).
+// undefined header, -222 data out of range, -410 a new command before a response was read: IEEE
+// 488.2's query INTERRUPTED, which discards the response). A reading is the lamp's power averaged
+// over n samples of 1 ms ending now, with the meter's own noise (1e-4 relative per sample).
 //
 // Faults: monitor_disconnect (opportunity: each bulk-out) - the meter leaves the bus for the
 // event's duration: every call returns kNotConnected ("LIBUSB_ERROR_NO_DEVICE"), and Reopen

@@ -67,6 +67,11 @@ TEST_F(PowerMeter, ScpiSettingsAndTheErrorQueue) {
   ASSERT_TRUE(tmc.Write("SENS:BOGUS 3").ok());
   EXPECT_EQ(*tmc.Query("SYST:ERR?"), "-113,\"Undefined header\"");
   EXPECT_EQ(*tmc.Query("SYST:ERR?"), "0,\"No error\"");
+  // A command before the last response was read: IEEE 488.2's query INTERRUPTED (-410), and the
+  // unread response is gone.
+  ASSERT_TRUE(tmc.Write("MEAS:POW?").ok());
+  EXPECT_EQ(*tmc.Query("SYST:ERR?"), "-410,\"Query INTERRUPTED\"");
+  EXPECT_EQ(*tmc.Query("SYST:ERR?"), "0,\"No error\"");
 }
 
 TEST_F(PowerMeter, ReadingsFollowTheLampAndAveragingNarrowsTheNoise) {
@@ -216,9 +221,10 @@ TEST_F(PowerMeter, AServerThatRestartsOnItsPortIsReachedAgain) {
 
 // A meter outlives its clients: a process killed between a query's request and its read (the
 // kill-and-resume test's SIGKILL did this in CI) leaves the response queued, and an earlier
-// mistake leaves an entry in the error queue. The next session's first setting used to read that
-// stale reading as its SYST:ERR? answer and refuse to open ("refused 'SENS:CORR:WAV 633':
-// 1.203293E-03"). Opening now clears the meter first.
+// mistake leaves an entry in the error queue. The next session's first setting read whatever was
+// left - the stale reading (CI: "refused 'SENS:CORR:WAV 633': 1.203293E-03"), an old error, or
+// the -410 that a 488.2 meter queues when it drops the unread response - and refused to open.
+// Opening now clears the meter first.
 TEST_F(PowerMeter, OpeningTheMonitorStartsCleanAfterAClientThatDiedMidQuery) {
   SimulatedPowerMeter dev(clock, lamp, {}, 1, nullptr);
   auto server = MonitorSocketServer::Start(dev);
@@ -231,7 +237,7 @@ TEST_F(PowerMeter, OpeningTheMonitorStartsCleanAfterAClientThatDiedMidQuery) {
     ASSERT_TRUE(tmc.Write("MEAS:POW?").ok());     // a response nobody reads
   };  // the earlier client's socket closes here, as a killed process's would
 
-  // Without the clear the hazard is real: the stale reading answers the check of a setting.
+  // Without the clear the hazard is real: what the earlier client left fails a setting's check.
   leave_stale();
   {
     auto t = backends::UsbTmcSocketTransport::Connect("127.0.0.1", (*server)->port());

@@ -177,6 +177,14 @@ Result<std::vector<std::uint8_t>> LibUsbTmcTransport::ClassRequest(std::uint8_t 
   return buf;
 }
 
+Status LibUsbTmcTransport::ClearHalt(devices::UsbTmcEndpoint endpoint) {
+  if (handle_ == nullptr) return Error{ErrorCode::kNotConnected, IdText(id_) + " is closed"};
+  const bool out = endpoint == devices::UsbTmcEndpoint::kBulkOut;
+  const int rc = libusb_clear_halt(handle_, out ? ep_out_ : ep_in_);
+  if (rc != 0) return UsbError(rc, "USBTMC clear halt of " + IdText(id_));
+  return OkStatus();
+}
+
 Status LibUsbTmcTransport::Reopen() {
   Close();
   return Find();

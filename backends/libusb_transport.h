@@ -29,6 +29,7 @@ class LibUsbTmcTransport final : public UsbTmcTransport {
   Result<std::size_t> BulkIn(std::uint8_t* data, std::size_t capacity, int timeout_ms) override;
   Result<std::vector<std::uint8_t>> ClassRequest(std::uint8_t request, std::uint16_t value,
                                                  std::uint16_t length, int timeout_ms) override;
+  Status ClearHalt(devices::UsbTmcEndpoint endpoint) override;
   Status Reopen() override;
 
  private:

@@ -137,6 +137,13 @@ Result<std::vector<std::uint8_t>> UsbTmcSocketTransport::ClassRequest(std::uint8
   return Call('C', p, timeout_ms);
 }
 
+Status UsbTmcSocketTransport::ClearHalt(devices::UsbTmcEndpoint endpoint) {
+  const std::uint8_t e = endpoint == devices::UsbTmcEndpoint::kBulkOut ? 0 : 1;
+  auto r = Call('H', {e}, 1000);
+  if (!r.ok()) return r.error();
+  return OkStatus();
+}
+
 Status UsbTmcSocketTransport::Reopen() {
   auto r = Call('R', {}, 1000);
   if (!r.ok() && r.error().code == ErrorCode::kNotConnected) {

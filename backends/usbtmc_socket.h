@@ -4,10 +4,11 @@
 // USBTMC framing, so the framing code is the same as over libusb.
 //
 // Wire format (docs/source_monitor.md; gonio-sim serves it on its own; all integers little-endian):
-// a request is op (1 byte: 'O' bulk-out, 'I' bulk-in, 'C' class request, 'R' reopen), length (u32)
-// and that many bytes: the bulk-out data; the bulk-in capacity (u32); request (u8), value (u16),
-// length (u16). A reply is a code (1 byte: 0 success, otherwise 1 + the ErrorCode), length (u32)
-// and the bytes: data on success, the error message otherwise.
+// a request is op (1 byte: 'O' bulk-out, 'I' bulk-in, 'C' class request, 'H' clear halt, 'R'
+// reopen), length (u32) and that many bytes: the bulk-out data; the bulk-in capacity (u32);
+// request (u8), value (u16), length (u16); the endpoint (u8: 0 bulk-out, 1 bulk-in). A reply is a
+// code (1 byte: 0 success, otherwise 1 + the ErrorCode), length (u32) and the bytes: data on
+// success, the error message otherwise.
 #pragma once
 
 #include <cstdint>
@@ -32,6 +33,7 @@ class UsbTmcSocketTransport final : public UsbTmcTransport {
   Result<std::size_t> BulkIn(std::uint8_t* data, std::size_t capacity, int timeout_ms) override;
   Result<std::vector<std::uint8_t>> ClassRequest(std::uint8_t request, std::uint16_t value,
                                                  std::uint16_t length, int timeout_ms) override;
+  Status ClearHalt(devices::UsbTmcEndpoint endpoint) override;
   // The device reopened; when the socket itself has gone (gonio-sim restarted), it is connected
   // again to the same address first.
   Status Reopen() override;

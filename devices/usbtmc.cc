@@ -1,5 +1,7 @@
 #include "devices/usbtmc.h"
 
+#include <chrono>
+#include <thread>
 #include <vector>
 
 namespace gonio::devices {
@@ -91,7 +93,22 @@ Status UsbTmc::Clear() {
   for (int i = 0; i < 50; ++i) {
     auto c = t_.ClassRequest(usbtmc_request::kCheckClearStatus, 0, 2, timeout_ms_);
     if (!c.ok()) return c.error();
-    if (!c->empty() && (*c)[0] != kUsbTmcStatusPending) return OkStatus();
+    if (c->empty()) return Error{ErrorCode::kProtocol, "USBTMC: empty CHECK_CLEAR_STATUS answer"};
+    // Done: the device halted bulk-out when the clear began; the host clears that halt.
+    if ((*c)[0] == kUsbTmcStatusSuccess) return t_.ClearHalt(UsbTmcEndpoint::kBulkOut);
+    if ((*c)[0] != kUsbTmcStatusPending)
+      return Error{ErrorCode::kProtocol,
+                   "USBTMC: CHECK_CLEAR_STATUS answered status " + std::to_string((*c)[0])};
+    if (c->size() > 1 && ((*c)[1] & 0x01)) {
+      // bmClear.D0: bulk-in holds data the device could not drop; read it to a short packet.
+      std::vector<std::uint8_t> junk(4096);
+      for (int k = 0; k < 64; ++k) {
+        auto got = t_.BulkIn(junk.data(), junk.size(), timeout_ms_);
+        if (!got.ok() || *got < junk.size()) break;
+      }
+    } else {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
   }
   return Error{ErrorCode::kTimeout, "USBTMC: clear still pending"};
 }

@@ -35,7 +35,9 @@ class UsbTmc {
   // exchange starts clean, and kTimeout is returned.
   Result<std::string> Read();
   Result<std::string> Query(const std::string& message);
-  // INITIATE_CLEAR, then CHECK_CLEAR_STATUS until done: the device's buffers emptied.
+  // INITIATE_CLEAR, then CHECK_CLEAR_STATUS until done (draining bulk-in while the device asks
+  // for it), then the bulk-out endpoint's halt cleared (USBTMC 1.0 sections 4.2.1.6-7): the
+  // device's buffers emptied and the next message accepted.
   Status Clear();
   // After the device left the bus: reopen it through the transport.
   Status Reopen() { return t_.Reopen(); }

@@ -30,6 +30,9 @@ inline constexpr std::uint8_t kUsbTmcStatusSuccess = 0x01;
 inline constexpr std::uint8_t kUsbTmcStatusPending = 0x02;
 inline constexpr std::uint8_t kUsbTmcStatusFailed = 0x80;
 
+// A bulk endpoint, for ClearHalt.
+enum class UsbTmcEndpoint { kBulkOut, kBulkIn };
+
 // A USB device to open: what the libusb transport (backends/libusb_transport.h) looks for.
 struct UsbDeviceId {
   std::uint16_t vendor_id = 0x1313;   // Thorlabs
@@ -49,6 +52,9 @@ class UsbTmcTransport {
   // device's response of at most `length` bytes (its first byte a USBTMC_status).
   virtual Result<std::vector<std::uint8_t>> ClassRequest(std::uint8_t request, std::uint16_t value,
                                                          std::uint16_t length, int timeout_ms) = 0;
+  // USB 2.0 CLEAR_FEATURE(ENDPOINT_HALT) on a bulk endpoint: what the host sends after a clear
+  // (USBTMC 1.0 sections 4.2.1.6-7: INITIATE_CLEAR halts the bulk-out endpoint) or a stall.
+  virtual Status ClearHalt(UsbTmcEndpoint endpoint) = 0;
   // After kNotConnected: find the device again (same vendor, product and serial) and claim it.
   virtual Status Reopen() = 0;
 };

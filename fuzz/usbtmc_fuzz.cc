@@ -42,6 +42,7 @@ class FuzzTransport final : public gonio::devices::UsbTmcTransport {
     if (c.size() > length) c.resize(length);
     return c;
   }
+  gonio::Status ClearHalt(gonio::devices::UsbTmcEndpoint) override { return gonio::OkStatus(); }
   gonio::Status Reopen() override { return gonio::OkStatus(); }
 
  private:

@@ -91,6 +91,10 @@ bool ServeOne(int fd, devices::UsbTmcTransport& device) {
       auto r = device.ClassRequest(body[0], LittleU16(&body[1]), LittleU16(&body[3]), kTimeoutMs);
       return r.ok() ? Reply(fd, nullptr, *r) : Reply(fd, &r.error(), {});
     }
+    case 'H':
+      if (n != 1 || body[0] > 1) return false;
+      return ReplyStatus(fd, device.ClearHalt(body[0] == 0 ? devices::UsbTmcEndpoint::kBulkOut
+                                                           : devices::UsbTmcEndpoint::kBulkIn));
     case 'R':
       return ReplyStatus(fd, device.Reopen());
     default:

@@ -87,6 +87,7 @@ void SimulatedPowerMeter::Reset() {
   output_.clear();
   in_tag_.reset();
   errors_.clear();
+  bulk_out_halted_ = false;
   wavelength_nm_ = 633;
   averaging_ = 1;
 }
@@ -95,6 +96,13 @@ Status SimulatedPowerMeter::Present(double now) {
   if (needs_reopen_ || now < away_until_)
     return Error{ErrorCode::kNotConnected,
                  "LIBUSB_ERROR_NO_DEVICE: source monitor " + o_.serial + " is not on the bus"};
+  return OkStatus();
+}
+
+Status SimulatedPowerMeter::ClearHalt(devices::UsbTmcEndpoint endpoint) {
+  std::lock_guard lock(mu_);
+  if (Status s = Present(clock_.Now()); !s.ok()) return s;
+  if (endpoint == devices::UsbTmcEndpoint::kBulkOut) bulk_out_halted_ = false;
   return OkStatus();
 }
 
@@ -116,6 +124,9 @@ Status SimulatedPowerMeter::BulkOut(const std::uint8_t* data, std::size_t n, int
     needs_reopen_ = true;
   }
   if (Status s = Present(now); !s.ok()) return s;
+  if (bulk_out_halted_)
+    return Error{ErrorCode::kIo,
+                 "LIBUSB_ERROR_PIPE: source monitor's bulk-out is halted since INITIATE_CLEAR"};
   // A malformed header halts the endpoint, as a real device's STALL.
   if (!usbtmc::ValidHeader(data, n))
     return Error{ErrorCode::kIo, "LIBUSB_ERROR_PIPE: source monitor stalled on a bad header"};
@@ -203,6 +214,8 @@ Result<std::vector<std::uint8_t>> SimulatedPowerMeter::ClassRequest(std::uint8_t
       r = {kStatusSuccess, 0, 0, 0, 0, 0, 0, 0};
       break;
     case usbtmc::kInitiateClear:
+      // USBTMC 1.0 table 32: halt bulk-out, drop what it and bulk-in hold.
+      bulk_out_halted_ = true;
       input_.clear();
       output_.clear();
       in_tag_.reset();

@@ -1,8 +1,8 @@
 // The simulated source monitor: a USBTMC optical power meter (PM100USB-like SCPI, docs/reference.md
 // section 4) watching the lamp, below the transport layer that libusb would provide. It speaks the
 // device side of USBTMC - bulk headers, bTag checks, responses split to the host's requested size,
-// the abort and clear class requests - so the driver's own framing (devices/usbtmc.h)
-// runs unchanged against it.
+// the abort and clear class requests, the clear's halt of bulk-out until the host clears it - so
+// the driver's own framing (devices/usbtmc.h) runs unchanged against it.
 //
 // SCPI (case-insensitive, short or long forms): *IDN?, *RST, *CLS, MEAS[:SCAL]:POW? (W),
 // SENS:CORR:WAV <nm> / ? (400-1100), SENS:AVER[:COUN] <n> / ? (1-10000), SYST:ERR? (-113
@@ -45,6 +45,7 @@ class SimulatedPowerMeter final : public devices::UsbTmcTransport {
   Result<std::size_t> BulkIn(std::uint8_t* data, std::size_t capacity, int timeout_ms) override;
   Result<std::vector<std::uint8_t>> ClassRequest(std::uint8_t request, std::uint16_t value,
                                                  std::uint16_t length, int timeout_ms) override;
+  Status ClearHalt(devices::UsbTmcEndpoint endpoint) override;
   Status Reopen() override;
 
   double wavelength_nm() const;
@@ -63,6 +64,7 @@ class SimulatedPowerMeter final : public devices::UsbTmcTransport {
   std::mt19937_64 rng_;
   double away_until_ = -1;
   bool needs_reopen_ = false;
+  bool bulk_out_halted_ = false;        // from INITIATE_CLEAR until the host clears the halt
   std::string input_;                   // DEV_DEP_MSG_OUT payload until a newline
   std::string output_;                  // response bytes not yet read
   std::optional<std::uint8_t> in_tag_;  // the pending REQUEST_DEV_DEP_MSG_IN

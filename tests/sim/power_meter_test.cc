@@ -219,6 +219,77 @@ TEST_F(PowerMeter, AServerThatRestartsOnItsPortIsReachedAgain) {
   EXPECT_TRUE(back.ok()) << back.error().message;
 }
 
+// USBTMC 1.0 table 32: INITIATE_CLEAR halts bulk-out and drops both buffers; the host clears the
+// halt once CHECK_CLEAR_STATUS says done (section 4.2.1.7). A driver that skips that step cannot
+// send again.
+TEST_F(PowerMeter, AClearHaltsBulkOutUntilTheHostClearsTheHalt) {
+  SimulatedPowerMeter dev(clock, lamp);
+  UsbTmc tmc(dev);
+  ASSERT_TRUE(tmc.Write("MEAS:POW?").ok());
+  auto begun = dev.ClassRequest(devices::usbtmc_request::kInitiateClear, 0, 1, 1000);
+  ASSERT_TRUE(begun.ok()) << begun.error().message;
+  EXPECT_EQ((*begun)[0], devices::kUsbTmcStatusSuccess);
+  const Status halted = tmc.Write("*IDN?");
+  ASSERT_FALSE(halted.ok());
+  EXPECT_NE(halted.error().message.find("LIBUSB_ERROR_PIPE"), std::string::npos);
+  ASSERT_TRUE(dev.ClearHalt(devices::UsbTmcEndpoint::kBulkOut).ok());
+  auto idn = tmc.Query("*IDN?");  // the reading left before the clear is gone
+  ASSERT_TRUE(idn.ok()) << idn.error().message;
+  EXPECT_EQ(idn->rfind("gonio-sim,", 0), 0u) << *idn;
+  // The framing's own Clear does all of it.
+  ASSERT_TRUE(tmc.Write("MEAS:POW?").ok());
+  ASSERT_TRUE(tmc.Clear().ok());
+  EXPECT_EQ(tmc.Query("*IDN?")->rfind("gonio-sim,", 0), 0u);
+}
+
+// A device that cannot drop its bulk-in data itself answers CHECK_CLEAR_STATUS with PENDING and
+// bmClear.D0 set: the host reads bulk-in to a short packet and asks again (section 4.2.1.7). Our
+// simulated meter never does; a real one may. A FAILED status is an error, not a done clear.
+class ScriptedClear final : public devices::UsbTmcTransport {
+ public:
+  explicit ScriptedClear(std::uint8_t final_status) : final_(final_status) {}
+  Status BulkOut(const std::uint8_t*, std::size_t, int) override { return OkStatus(); }
+  Result<std::size_t> BulkIn(std::uint8_t*, std::size_t capacity, int) override {
+    ++bulk_in_reads;
+    return bulk_in_left > 0 ? (--bulk_in_left, capacity) : std::size_t{12};  // full, then short
+  }
+  Result<std::vector<std::uint8_t>> ClassRequest(std::uint8_t request, std::uint16_t, std::uint16_t,
+                                                 int) override {
+    if (request == devices::usbtmc_request::kInitiateClear) return std::vector<std::uint8_t>{1};
+    if (request != devices::usbtmc_request::kCheckClearStatus)
+      return Error{ErrorCode::kIo, "unexpected request"};
+    if (++checks == 1) return std::vector<std::uint8_t>{devices::kUsbTmcStatusPending, 0x01};
+    return std::vector<std::uint8_t>{final_, 0x00};
+  }
+  Status ClearHalt(devices::UsbTmcEndpoint e) override {
+    if (e == devices::UsbTmcEndpoint::kBulkOut) ++out_halts_cleared;
+    return OkStatus();
+  }
+  Status Reopen() override { return OkStatus(); }
+
+  int checks = 0, bulk_in_reads = 0, bulk_in_left = 1, out_halts_cleared = 0;
+
+ private:
+  std::uint8_t final_;
+};
+
+TEST(UsbTmcClear, DrainsBulkInWhenTheDeviceAsksAndClearsTheHaltWhenDone) {
+  ScriptedClear device(devices::kUsbTmcStatusSuccess);
+  UsbTmc tmc(device);
+  const Status s = tmc.Clear();
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_EQ(device.checks, 2);
+  EXPECT_EQ(device.bulk_in_reads, 2);  // a full transfer, then the short one that ends it
+  EXPECT_EQ(device.out_halts_cleared, 1);
+
+  ScriptedClear failing(devices::kUsbTmcStatusFailed);
+  UsbTmc tmc2(failing);
+  const Status f = tmc2.Clear();
+  ASSERT_FALSE(f.ok());
+  EXPECT_NE(f.error().message.find("CHECK_CLEAR_STATUS"), std::string::npos) << f.error().message;
+  EXPECT_EQ(failing.out_halts_cleared, 0);
+}
+
 // A meter outlives its clients: a process killed between a query's request and its read (the
 // kill-and-resume test's SIGKILL did this in CI) leaves the response queued, and an earlier
 // mistake leaves an entry in the error queue. The next session's first setting read whatever was

@@ -17,7 +17,8 @@ Result<std::string> ScpiPowerMeter::QueryWithReopen(const std::string& q) {
 }
 
 Status ScpiPowerMeter::Clear() {
-  if (Status s = tmc_.Clear(); !s.ok()) return s;
+  if (Status s = tmc_.Clear(); !s.ok())
+    return Error{s.error().code, "source monitor: clearing it failed: " + s.error().message};
   return tmc_.Write("*CLS");
 }
 

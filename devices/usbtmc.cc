@@ -90,7 +90,8 @@ Status UsbTmc::Clear() {
   if (!r.ok()) return r.error();
   if (r->empty() || (*r)[0] != kUsbTmcStatusSuccess)
     return Error{ErrorCode::kProtocol, "USBTMC: INITIATE_CLEAR refused"};
-  for (int i = 0; i < 50; ++i) {
+  // Up to 100 checks 50 ms apart (5 s), as long as the Linux usbtmc driver gives a device.
+  for (int i = 0; i < 100; ++i) {
     auto c = t_.ClassRequest(usbtmc_request::kCheckClearStatus, 0, 2, timeout_ms_);
     if (!c.ok()) return c.error();
     if (c->empty()) return Error{ErrorCode::kProtocol, "USBTMC: empty CHECK_CLEAR_STATUS answer"};
@@ -107,7 +108,7 @@ Status UsbTmc::Clear() {
         if (!got.ok() || *got < junk.size()) break;
       }
     } else {
-      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
   }
   return Error{ErrorCode::kTimeout, "USBTMC: clear still pending"};

@@ -239,7 +239,9 @@ TEST_F(PowerMeter, AClearHaltsBulkOutUntilTheHostClearsTheHalt) {
   // The framing's own Clear does all of it.
   ASSERT_TRUE(tmc.Write("MEAS:POW?").ok());
   ASSERT_TRUE(tmc.Clear().ok());
-  EXPECT_EQ(tmc.Query("*IDN?")->rfind("gonio-sim,", 0), 0u);
+  auto again = tmc.Query("*IDN?");
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_EQ(again->rfind("gonio-sim,", 0), 0u) << *again;
 }
 
 // A device that cannot drop its bulk-in data itself answers CHECK_CLEAR_STATUS with PENDING and
@@ -332,7 +334,9 @@ TEST_F(PowerMeter, OpeningTheMonitorStartsCleanAfterAClientThatDiedMidQuery) {
   ASSERT_TRUE(w.ok()) << w.error().message;
   EXPECT_NEAR(*w, 2e-3, 1e-5);  // a reading of its own, near the lamp's 2 mW
   ScpiPowerMeter check(*opened->transport);
-  EXPECT_EQ(*check.NextError(), "0,\"No error\"");  // the earlier -113 is gone
+  auto first_error = check.NextError();
+  ASSERT_TRUE(first_error.ok()) << first_error.error().message;
+  EXPECT_EQ(*first_error, "0,\"No error\"");  // the earlier -113 is gone
 }
 
 }  // namespace

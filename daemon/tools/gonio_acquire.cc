@@ -50,7 +50,19 @@ std::atomic<bool> g_waiting{false};    // no point in hand: a device fault is be
 std::atomic<devices::StageController*> g_stages{nullptr};
 std::atomic<Storage*> g_store{nullptr};  // with g_run, the run StopNow leaves paused
 std::atomic<std::int64_t> g_run{0};
-std::mutex g_exit;  // held by StopNow to the end: the measuring thread does not report meanwhile
+// Held by StopNow to the end: the measuring thread does not report meanwhile. Never destroyed:
+// main ends holding it (HoldExitFromTeardown).
+std::mutex& g_exit = *new std::mutex;
+
+// Declared after the devices and the store, so destroyed before them: from then on the process
+// ends with main's code, and a late StopNow (a second signal's grace running out as the run
+// pauses by itself) waits for ever instead of stopping stages that are being destroyed.
+struct HoldExitFromTeardown {
+  HoldExitFromTeardown() = default;
+  HoldExitFromTeardown(const HoldExitFromTeardown&) = delete;
+  HoldExitFromTeardown& operator=(const HoldExitFromTeardown&) = delete;
+  ~HoldExitFromTeardown() { g_exit.lock(); }
+};
 
 // Exits (3, paused by a signal) without waiting for the measuring thread, which a device that does
 // not answer can hold for tens of seconds where no interrupt reaches (Aravis' connect retries, a
@@ -370,6 +382,7 @@ int main(int argc, char** argv) {
   // The devices open before the plan is checked against the camera's image: nothing moves yet.
   // A dry run opens nothing and checks the plan against the config alone.
   daemon::Instrument in;
+  const HoldExitFromTeardown hold_exit;
   in.context = daemon::PlanContextOf(*cfg, *specimens);
   if (!dry_run) {
     auto opened = daemon::OpenInstrument(*cfg, *specimens);

@@ -64,6 +64,16 @@ struct HoldExitFromTeardown {
   ~HoldExitFromTeardown() { g_exit.lock(); }
 };
 
+// Tells the stages to stop, waiting for them at most 1.5 s. Call with g_exit held.
+void StopStagesQuickly() {
+  if (devices::StageController* stages = g_stages.load()) {
+    constexpr double kStopWaitS = 1.5;
+    if (!daemon::StopStagesWithin(*stages, kStopWaitS))
+      std::cerr << "gonio-acquire: the stages did not confirm STOP: they may still be moving"
+                << std::endl;
+  }
+}
+
 // Exits (3, paused by a signal) without waiting for the measuring thread, which a device that does
 // not answer can hold for tens of seconds where no interrupt reaches (Aravis' connect retries, a
 // Modbus timeout).
@@ -72,12 +82,7 @@ struct HoldExitFromTeardown {
   std::cerr << "gonio-acquire: " << why << ": still waiting on a device, exiting without it; "
             << "the point in hand, if any, is left pending (gonio-acquire ... resume continues "
             << "the run)" << std::endl;
-  if (devices::StageController* stages = g_stages.load()) {
-    constexpr double kStopWaitS = 1.5;
-    if (!daemon::StopStagesWithin(*stages, kStopWaitS))
-      std::cerr << "gonio-acquire: the stages did not confirm STOP: they may still be moving"
-                << std::endl;
-  }
+  StopStagesQuickly();
   // Storage is safe to share between threads; a point being stored meanwhile is one transaction,
   // in whole or not at all. A run that finished meanwhile stays done.
   if (Storage* store = g_store.load(); store != nullptr && g_run > 0) {
@@ -86,7 +91,18 @@ struct HoldExitFromTeardown {
       (void)store->SetRunStatus(g_run, RunStatus::kPaused);
     }
   }
+  std::fflush(nullptr);
   std::_Exit(3);
+}
+
+// The end of a run stopped at once (g_interrupt): the devices are not closed either, since a
+// camera that has gone holds its close for its GVCP retries (some 10 s). Every stored point is
+// already committed; the stages are told to stop.
+[[noreturn]] void ExitWithoutClosing(int code) {
+  g_exit.lock();
+  StopStagesQuickly();
+  std::fflush(nullptr);  // std::cout is synced with stdio: what main printed is in stdout's buffer
+  std::_Exit(code);
 }
 
 // Stops the point in hand as goniod's SIGTERM does: the engine abandons the exposure in progress
@@ -431,5 +447,7 @@ int main(int argc, char** argv) {
     held << "sensor held at " << *held_c << " C";
     (void)store.AddEvent(run_id, "cooled", held.str());
   }
-  return Measure(store, in, *cfg, run_id, *plan, retry);
+  const int code = Measure(store, in, *cfg, run_id, *plan, retry);
+  if (g_interrupt) ExitWithoutClosing(code);
+  return code;
 }

@@ -22,7 +22,8 @@
 #                    simulated instrument (gonio-sim, drivers, engine, SQLite, gonio-fit): ground
 #                    glass (the demo's plan), frosted, etched and antiglare (its auto rectangle),
 #                    each with a Beckmann and a GGX truth on 3, 6 and 9 mm plates (24 cases), and
-#                    antiglare under a fixed 3 x 10 mm rectangle; not in the default set:
+#                    antiglare under a fixed 3 x 10 mm rectangle with either truth (26 cases); not
+#                    in the default set:
 #                    COVERAGE_RUNS (default 20) runs of 2-5 minutes per case (antiglare_3x10:
 #                    about 11, of which 6-7 the fit, its samples held to the ray budget,
 #                    docs/measurement.md), about a day for all; COVERAGE_CASES picks some,
@@ -43,7 +44,7 @@
 #        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20);
 #        COVERAGE_CASES="ground antiglare_3x10 ..." runs those cases alone: sample[_ggx][_3mm|_9mm]
 #        for sample ground, frosted, etched or antiglare (a Beckmann truth on a 6 mm plate unless
-#        named), and antiglare_3x10; SIM_SEED=N adds a series of fresh runs to a case's earlier
+#        named), antiglare_3x10 and antiglare_ggx_3x10; SIM_SEED=N adds a series of fresh runs to a case's earlier
 #        ones (out/bench/coverage/CASE/seedN), tabulated together in out/bench/coverage_CASE.md
 #        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
 #        FORECAST_RUNS=N sets forecast's real adaptive runs (default 8)
@@ -105,6 +106,7 @@ for part in "${parts[@]}"; do
         done
       done
       cases+=("antiglare_3x10|SIM_ALPHA=0.023|bench/coverage/plan_antiglare_3x10.toml")
+      cases+=("antiglare_ggx_3x10|SIM_MODEL=ggx SIM_ALPHA=0.027|bench/coverage/plan_antiglare_3x10.toml")
       names=" ${cases[*]%%|*} "
       wanted=" ${COVERAGE_CASES:-$names} "
       # Each series is kept under its seed, so a case run as several series (a stopped one

@@ -44,8 +44,9 @@
 #        COVERAGE_RUNS=N sets coverage's whole-instrument runs per case (default 20);
 #        COVERAGE_CASES="ground antiglare_3x10 ..." runs those cases alone: sample[_ggx][_3mm|_9mm]
 #        for sample ground, frosted, etched or antiglare (a Beckmann truth on a 6 mm plate unless
-#        named), antiglare_3x10 and antiglare_ggx_3x10; SIM_SEED=N adds a series of fresh runs to a case's earlier
-#        ones (out/bench/coverage/CASE/seedN), tabulated together in out/bench/coverage_CASE.md
+#        named), antiglare_3x10 and antiglare_ggx_3x10; SIM_SEED=N adds a series of fresh runs to
+#        a case's earlier ones (out/bench/coverage/CASE/seedN), tabulated together in
+#        out/bench/coverage_CASE.md
 #        ACQUIRE_REPEATS=N sets acquire's simulated runs per row (default 100)
 #        FORECAST_RUNS=N sets forecast's real adaptive runs (default 8)
 #        (default: all but coverage and soak)

@@ -6,9 +6,12 @@ COVERAGE_KEEP). A case is often run as several series (one per SIM_SEED, two at 
 own loopbacks): this puts them into one table. Per fit (normal incidence, joint): the runs
 converged, how many 2-sigma intervals cover the truth, the mean bias over the mean sigma, the
 pulls' rms, the mean sigma and its geometry part, and the range of chi^2/dof. --pulls also lists
-each run's pull.
+each run's pull. --by-floor splits each fit's row by gonio-fit's floor choice (Floor::kAuto): kept
+because BIC shows it, kept only because leaving it out moves the width by more than half its sigma
+(a choice made on the data, so the fits it keeps are those whose floor-fitted width lies far from
+the floor-free one), or left out with that move in sigma.
 
-  bench/coverage/coverage_table.py TRUTH DIR [DIR...] [--pulls]
+  bench/coverage/coverage_table.py TRUTH DIR [DIR...] [--pulls] [--by-floor]
 """
 import argparse
 import json
@@ -40,19 +43,35 @@ def first_fit(path, key):
         f = s[key][0]
         w = f["width"]
         return (float(w["value"]), float(w["sigma"]), float(w.get("sigma_geometry", 0.0)),
-                float(f["reduced_chi2"]), str(f["status"]))
+                float(f["reduced_chi2"]), str(f["status"]), floor_kind(str(f.get("floor_choice", ""))))
     except (OSError, ValueError) as e:
         sys.exit(f"coverage_table: {path}: {e}")
     except (KeyError, IndexError, TypeError) as e:
         sys.exit(f"coverage_table: {path}: not a gonio-fit summary (no {key}[0]: {e})")
 
 
-def table(truth, paths, show_pulls):
+def floor_kind(choice):
+    """gonio-fit's floor_choice (fitting/fitter.cc, FitWithFloor) as the rule that made it."""
+    if choice.startswith("floor kept: BIC lower by only"):
+        return "floor kept for the width's move"
+    if choice.startswith("floor kept"):
+        return "floor kept by BIC"
+    if choice.endswith("which is in sigma"):
+        return "no floor, its move in σ"
+    return "no floor" if choice.startswith("no floor") else "floor not chosen"
+
+
+def table(truth, paths, show_pulls, by_floor=False):
     lines = ["| fit | runs converged | 2σ covers truth | mean bias / mean σ | pull rms | mean σ(α) "
              "| of which geometry | χ²/dof range |", "|---|---|---|---|---|---|---|---|"]
     pull_lines = []
+    fits = []
     for name, key in (("normal incidence", "normal_incidence_fits"), ("joint", "fits")):
         rows = [first_fit(p, key) for p in paths]
+        kinds = sorted({r[5] for r in rows}) if by_floor else [None]
+        fits += [(name if k is None else f"{name}, {k}", [r for r in rows if k in (None, r[5])])
+                 for k in kinds]
+    for name, rows in fits:
         ok = [r for r in rows if r[4] == "converged"]
         pulls = [(a - truth) / s for a, s, *_ in ok if s > 0]
         if not ok:
@@ -76,6 +95,9 @@ def main():
     ap.add_argument("truth", help="the simulated sample's alpha")
     ap.add_argument("dirs", nargs="+", help="directories holding fitN/fit_summary.json")
     ap.add_argument("--pulls", action="store_true", help="also list each run's pull")
+    ap.add_argument("--by-floor", action="store_true",
+                    help="a row for each floor choice (kept by BIC, kept for the width's move, "
+                    "left out)")
     a = ap.parse_args()
     try:
         truth = float(a.truth)
@@ -83,7 +105,7 @@ def main():
         sys.exit(f"coverage_table: TRUTH must be a number, not '{a.truth}'")
     if not math.isfinite(truth) or truth <= 0:
         sys.exit(f"coverage_table: TRUTH must be a positive width, not {a.truth}")
-    print(table(truth, [p for d in a.dirs for p in runs_in(d)], a.pulls))
+    print(table(truth, [p for d in a.dirs for p in runs_in(d)], a.pulls, a.by_floor))
 
 
 if __name__ == "__main__":

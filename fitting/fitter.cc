@@ -1483,7 +1483,11 @@ Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const SolveOpti
     chosen = &*with;
     why << "floor kept: BIC lower by only " << without->bic - with->bic
         << " with it, but leaving it out moves the width by " << moves
-        << " of its sigma (more than " << o.floor_width_tolerance << ")";
+        << " of its sigma (more than " << o.floor_width_tolerance << "), which is in sigma";
+    // Kept because this draw put the floor-fitted width far from the other: chosen on the noise,
+    // its own sigma is short (under a floor the data cannot see, the kept fits' pulls have an rms
+    // near 1.2 by the selection alone). The move in sigma, as where the floor is left out.
+    chosen->width.sigma_floor = std::abs(shift);
   } else if (with->status == FitStatus::kFailed) {
     why << "no floor: the fit with one failed";
   } else if (!both) {
@@ -1494,8 +1498,9 @@ Result<FitSummary> FitWithFloor(std::span<const Sample> samples, const SolveOpti
         << " with it (more than 2 needed), and leaving it out moves the width by " << moves
         << " of its sigma, which is in sigma";
     // What the floor the data could not show might have done to the width.
-    without->width.sigma = std::hypot(without->width.sigma, shift);
+    without->width.sigma_floor = std::abs(shift);
   }
+  chosen->width.sigma = std::hypot(chosen->width.sigma, chosen->width.sigma_floor);
   chosen->floor_width_shift = shift;
   chosen->floor_choice = why.str();
   chosen->seconds = seconds;
@@ -2038,8 +2043,13 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
         Refit(WithSetupChanged(used, [&g](ResponseSetup& c) { MoveToFitted(g, c); }), so, fit);
     if (best) {
       const std::string floor_choice = fit.floor_choice;
+      const double floor_shift = fit.floor_width_shift, floor_part = fit.width.sigma_floor;
       fit = std::move(best).value();
       if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
+      // The refit keeps the floor's choice but not what the choice put in sigma.
+      fit.floor_width_shift = floor_shift;
+      fit.width.sigma_floor = floor_part;
+      fit.width.sigma = std::hypot(fit.width.sigma, floor_part);
       note << "; refitted at that geometry";
     } else {
       fit.width.value += shift;

@@ -48,9 +48,12 @@ enum class Loss { kNone, kHuber, kCauchy };
 // it out moves the width by more than FitOptions::floor_width_tolerance of the width's sigma with
 // it, since BIC asks whether the data show the floor, not whether the width depends on it (a
 // floor at 2 sigma of its own moved antiglare's alpha by 1.2 sigma, and BIC left it out about
-// half the time: +0.4 sigma of bias over draws). Where it is left out, that move joins the
-// width's sigma in quadrature (FitSummary::floor_width_shift). On samples whose background was
-// each measured and subtracted (Sample::background_subtracted) it fits none.
+// half the time: +0.4 sigma of bias over draws). Wherever BIC could not show the floor, that move
+// joins the width's sigma in quadrature (FitSummary::floor_width_shift, Parameter::sigma_floor),
+// whether the floor was then kept or left out: a floor kept for its move is chosen on the draw,
+// when the floor-fitted width lies far from the other, and without the move in sigma those fits
+// covered 6 of 9 on antiglare under 3 x 10 mm with a GGX truth (docs/measurement.md). On samples
+// whose background was each measured and subtracted (Sample::background_subtracted) it fits none.
 enum class Floor { kOff, kFit, kAuto };
 enum class Derivatives { kAutomatic, kNumeric };
 // A sample held to the ray budget: its error traced one level finer, or the next level's change.
@@ -127,6 +130,10 @@ struct Parameter {
   // angle read-back through each sample's sigma, the thickness and the rectangle's position by
   // refitting with them moved by their sigma. 0 when none is stated.
   double sigma_geometry = 0;
+  // The part of sigma that the floor's choice accounts for (the width's only; FitWithFloor in
+  // fitter.cc): where BIC could not show the floor, how far the width with a floor fitted lies
+  // from the width without one, whichever of the two is reported. 0 otherwise.
+  double sigma_floor = 0;
 };
 
 // A setup quantity common to a run (the plate's thickness, the rectangle's position along one
@@ -239,9 +246,9 @@ struct FitSummary {
   bool floor_fitted = false;
   std::string floor_choice;  // with Floor::kAuto: why it was kept or left out
   // With Floor::kAuto: the width with a floor fitted minus the width without one (0 unless both
-  // fits converged, the floor's with no higher chi-square). Where the floor was left out, its
-  // magnitude is in width.sigma (in quadrature): what a floor the data could not show might
-  // still have moved it.
+  // fits converged, the floor's with no higher chi-square). Where BIC could not show the floor,
+  // its magnitude is in width.sigma (in quadrature, width.sigma_floor): what a floor the data
+  // could not show might have moved it, or what choosing it on this draw did.
   double floor_width_shift = 0;
   ResponseUse response;
   GeometryUse geometry;

@@ -13,7 +13,8 @@ inline nlohmann::json ToJson(const FitSummary& f) {
     return nlohmann::json{{"value", p.value},
                           {"sigma", p.sigma},
                           {"sigma_stat", p.sigma_stat},
-                          {"sigma_geometry", p.sigma_geometry}};
+                          {"sigma_geometry", p.sigma_geometry},
+                          {"sigma_floor", p.sigma_floor}};
   };
   // A geometry nuisance parameter: the offset from the stated value the data found (fitted) or
   // the prior (not), and what it moved the width by.

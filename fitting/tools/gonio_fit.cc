@@ -72,15 +72,19 @@ void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
               << cell(PlusMinus(f.eta, 3), 18) << cell(number(f.reduced_chi2, 4), 10)
               << cell(number(choice.delta_bic[k], 3), 10) << ToString(f.status) << "\n";
     if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
-    if (f.width.sigma_stat > 0 || f.width.sigma_geometry > 0)
+    if (f.width.sigma_stat > 0 || f.width.sigma_geometry > 0) {
+      const Parameter& w = f.width;
       std::cout << "    " << WidthName(f.model.family) << "'s sigma " << std::setprecision(3)
-                << f.width.sigma << ": statistical (shot, read, dark) " << f.width.sigma_stat
+                << w.sigma << ": statistical (shot, read, dark) " << w.sigma_stat
                 << ", instrument (lamp, monitor" << (f.reduced_chi2 > 1 ? ", chi2 inflation" : "")
                 << ") "
-                << std::sqrt(std::max(0.0, f.width.sigma * f.width.sigma -
-                                               f.width.sigma_stat * f.width.sigma_stat -
-                                               f.width.sigma_geometry * f.width.sigma_geometry))
-                << ", geometry " << f.width.sigma_geometry << "\n";
+                << std::sqrt(std::max(0.0, w.sigma * w.sigma - w.sigma_stat * w.sigma_stat -
+                                               w.sigma_geometry * w.sigma_geometry -
+                                               w.sigma_floor * w.sigma_floor))
+                << ", geometry " << w.sigma_geometry;
+      if (w.sigma_floor > 0) std::cout << ", the floor's choice " << w.sigma_floor;
+      std::cout << "\n";
+    }
     if (!f.geometry.note.empty()) std::cout << "    geometry: " << f.geometry.note << "\n";
     if (f.response.samples_with_response > 0)
       std::cout << "    instrument response: " << f.response.rectangle << " of " << f.n_points

@@ -186,8 +186,9 @@ TEST(Fit, AutoFloorIsKeptWhereNeededAndNotFittedWhereTheBackgroundWasMeasured) {
 // A floor BIC cannot show may still move the width: antiglare swept +-2 deg about its peak (as
 // the bench sweeps it), with stray light at 2 sigma of its own estimate added to noise-free
 // data. BIC alone (floor_width_tolerance infinite) leaves the floor out and alpha moves off the
-// truth; by default the floor is kept because leaving it out moves the width, and alpha is the
-// truth's. Without stray light the floor stays out, its move (none) adds nothing to sigma.
+// truth; by default the floor is kept because leaving it out moves the width, alpha is the
+// truth's, and that move is in sigma (kept or not, BIC could not show the floor). Without stray
+// light the floor stays out, its move (none) adds nothing to sigma.
 TEST(Fit, AutoFloorIsKeptWhereLeavingItOutWouldMoveTheWidth) {
   SyntheticSweep s = Sweep(Family::kBeckmann, kFigure12[3], 1);
   s.fine_step = 0;
@@ -209,17 +210,27 @@ TEST(Fit, AutoFloorIsKeptWhereLeavingItOutWouldMoveTheWidth) {
       << "BIC showed the floor: weak test; " << bic_alone.floor_choice;
   o.floor_width_tolerance = FitOptions{}.floor_width_tolerance;
   const FitSummary kept = MustFit(stray, o);
-  const double off_by = (bic_alone.width.value - s.width) / kept.width.sigma;
+  o.floor = Floor::kFit;
+  const double sigma_fitted = MustFit(stray, o).width.sigma;  // the floor's, without its move
+  o.floor = Floor::kAuto;
+  const double off_by = (bic_alone.width.value - s.width) / sigma_fitted;
   EXPECT_GT(std::abs(off_by), 0.5) << "leaving the floor out did not move alpha: weak test";
   EXPECT_TRUE(kept.floor_fitted) << kept.floor_choice;
   EXPECT_NE(kept.floor_choice.find("moves the width"), std::string::npos) << kept.floor_choice;
   EXPECT_NEAR(kept.floor_width_shift, kept.width.value - bic_alone.width.value,
               1e-3 * kept.width.sigma);
-  EXPECT_LT(std::abs(kept.width.value - s.width), 0.1 * kept.width.sigma)
+  EXPECT_LT(std::abs(kept.width.value - s.width), 0.1 * sigma_fitted)
       << "BIC alone was " << off_by << " sigma off";
+  // Kept for its move, on a choice the draw could have made: the move is in sigma, as where the
+  // floor is left out.
+  EXPECT_NEAR(kept.width.sigma_floor, std::abs(kept.floor_width_shift), 1e-12);
+  EXPECT_NE(kept.floor_choice.find("which is in sigma"), std::string::npos) << kept.floor_choice;
+  EXPECT_NEAR(kept.width.sigma, std::hypot(sigma_fitted, kept.floor_width_shift),
+              1e-6 * kept.width.sigma);
   const FitSummary clean = MustFit(data, o);
   EXPECT_FALSE(clean.floor_fitted) << clean.floor_choice;
   EXPECT_LT(std::abs(clean.floor_width_shift), 0.01 * clean.width.sigma);
+  EXPECT_NEAR(clean.width.sigma_floor, std::abs(clean.floor_width_shift), 1e-15);
   EXPECT_LT(std::abs(clean.width.value - s.width), 0.01 * clean.width.sigma);
   std::cout << "[ info ] stray light at 2 sigma: BIC alone " << off_by << " sigma off ("
             << bic_alone.floor_choice

@@ -839,6 +839,39 @@ TEST(ResponseTest, TheFloorIsKeptOnlyWhenTheDataNeedIt) {
   EXPECT_LT(std::abs(floored->width.value - 0.344), 2 * floored->width.sigma);
 }
 
+// Where BIC cannot show the floor, the floor-fitted width's distance from the other is in sigma
+// (fitter.h, Floor::kAuto), and stays there after the refit at the geometry the data found: that
+// refit keeps the floor's choice, and once dropped what the choice had put in sigma.
+TEST(ResponseTest, TheFloorsMoveStaysInSigmaThroughTheRefitAtTheGeometryFound) {
+  const auto truth = sim::MicrofacetTruth("beckmann", 0.344, 1.51);
+  auto made = CentredSetup(3, 10, 9.6);
+  made.bench.source_sr = made.bench.receiver_sr = 0;
+  auto stated = made;
+  stated.bench.thickness_sigma_mm = 0.6;
+  const auto samples = MisstatedSamples(*truth, made, stated, 0, 31);
+  fitting::FitOptions o;
+  o.floor = fitting::Floor::kAuto;
+  auto chosen = fitting::Fit(samples, o);
+  ASSERT_TRUE(chosen.ok()) << chosen.error().message;
+  ASSERT_TRUE(chosen->geometry.thickness.fitted) << chosen->geometry.note;
+  ASSERT_NE(chosen->geometry.note.find("refitted at that geometry"), std::string::npos)
+      << chosen->geometry.note;
+  // Whichever way the choice went (on these data the floor is kept for a move of 0.6 sigma),
+  // BIC did not make it.
+  EXPECT_NE(chosen->floor_choice.find("which is in sigma"), std::string::npos)
+      << chosen->floor_choice;
+  // The same fit with the floor's choice imposed, which has no move to add.
+  o.floor = chosen->floor_fitted ? fitting::Floor::kFit : fitting::Floor::kOff;
+  auto imposed = fitting::Fit(samples, o);
+  ASSERT_TRUE(imposed.ok());
+  EXPECT_GT(std::abs(chosen->floor_width_shift), 0.1 * imposed->width.sigma) << "weak test";
+  EXPECT_EQ(chosen->width.sigma_floor, std::abs(chosen->floor_width_shift));
+  EXPECT_EQ(imposed->width.sigma_floor, 0);
+  EXPECT_NEAR(chosen->width.value, imposed->width.value, 1e-9 * imposed->width.sigma);
+  EXPECT_NEAR(chosen->width.sigma, std::hypot(imposed->width.sigma, chosen->floor_width_shift),
+              1e-9 * imposed->width.sigma);
+}
+
 TEST(ResponseTest, AnExportsResponseLineIsReadBackAndABadOneIsNamedByLine) {
   const auto setup = CentredSetup(1, 3, 6);
   const std::string header =

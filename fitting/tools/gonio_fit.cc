@@ -226,7 +226,8 @@ int main(int argc, char** argv) {
   app.add_option(
          "--floor", floor_arg,
          "a constant floor (stray light): auto (kept when BIC prefers it or when leaving it out "
-         "moves the width by more than half its sigma), on or off")
+         "moves the width by more than half its sigma; where BIC does not, that move is in "
+         "sigma either way), on or off")
       ->capture_default_str();
   app.add_flag("--point-model", point_model,
                "ignore the samples' instrument response (an export's '# response:' line)");

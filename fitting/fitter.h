@@ -52,7 +52,7 @@ enum class Loss { kNone, kHuber, kCauchy };
 // joins the width's sigma in quadrature (FitSummary::floor_width_shift, Parameter::sigma_floor),
 // whether the floor was then kept or left out: a floor kept for its move is chosen on the draw,
 // when the floor-fitted width lies far from the other, and without the move in sigma those fits
-// covered 6 of 9 on antiglare under 3 x 10 mm with a GGX truth (docs/measurement.md). On samples
+// covered 13 of 16 on antiglare under 3 x 10 mm with a GGX truth (docs/measurement.md). On samples
 // whose background was each measured and subtracted (Sample::background_subtracted) it fits none.
 enum class Floor { kOff, kFit, kAuto };
 enum class Derivatives { kAutomatic, kNumeric };

@@ -43,7 +43,8 @@ def first_fit(path, key):
         f = s[key][0]
         w = f["width"]
         return (float(w["value"]), float(w["sigma"]), float(w.get("sigma_geometry", 0.0)),
-                float(f["reduced_chi2"]), str(f["status"]), floor_kind(str(f.get("floor_choice", ""))))
+                float(f["reduced_chi2"]), str(f["status"]),
+                floor_kind(str(f.get("floor_choice", ""))))
     except (OSError, ValueError) as e:
         sys.exit(f"coverage_table: {path}: {e}")
     except (KeyError, IndexError, TypeError) as e:

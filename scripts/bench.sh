@@ -24,10 +24,10 @@
 #                    each with a Beckmann and a GGX truth on 3, 6 and 9 mm plates (24 cases), and
 #                    antiglare under a fixed 3 x 10 mm rectangle with either truth (26 cases); not
 #                    in the default set:
-#                    COVERAGE_RUNS (default 20) runs of 2-5 minutes per case (antiglare_3x10:
-#                    about 11, of which 6-7 the fit, its samples held to the ray budget,
-#                    docs/measurement.md), about a day for all; COVERAGE_CASES picks some,
-#                    SIM_SEED adds fresh runs to a case's earlier series
+#                    COVERAGE_RUNS (default 20) runs of 2-5 minutes per case (antiglare_3x10
+#                    and antiglare_ggx_3x10: about 10-11, of which 6-7 the fit, its samples held
+#                    to the ray budget, docs/measurement.md), about a day for all; COVERAGE_CASES
+#                    picks some, SIM_SEED adds fresh runs to a case's earlier series
 #                                  -> coverage_<case>.md, coverage/<case>/seed<N>/ (each run kept)
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass

@@ -301,7 +301,7 @@ Result<Measurement> Engine::Reduce(const Exposed& e) {
   // With a measured background the dark is subtracted from both and cancels: the point's own
   // frames' noise is all of stat.
   // The dark set's own error is in every point subtracted with it: sigma_dark says how much of
-  // sigma_stat it is, so that a fit can take it as one error per set (issue #16's antiglare runs
+  // sigma_stat it is, so that a fit can take it as one error per set (antiglare runs
   // at ambient: the 20 s set's offset, shared by 13 points, scattered 2.1 times its own error
   // from run to run).
   const double var_dark =

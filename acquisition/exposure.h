@@ -1,4 +1,4 @@
-// Auto-ranging and what a point's exposure will be before it is measured (issue #17).
+// Auto-ranging and what a point's exposure will be before it is measured.
 //
 // The engine ranges each point's exposure on its frames: JudgeExposure says whether a try is
 // kept or which exposure comes next. Before a run, the same rule is played on a forecast of each

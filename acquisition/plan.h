@@ -73,7 +73,7 @@ struct AutoRectangle {
   std::optional<int> centre_x, centre_y;  // image pixels; default: the image's centre
 };
 
-// How a run spends its bench time ([strategy] in a plan; acquisition/strategy.h, issue #17).
+// How a run spends its bench time ([strategy] in a plan; acquisition/strategy.h).
 //   uniform   every point of the grid, in order (the default);
 //   lobe      the grid's points where the specimen's expected lobe (Beckmann at the catalogue's
 //             width) is above `lobe_fraction` of its incidence's peak, and every `tail_every`-th

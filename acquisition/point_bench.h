@@ -1,4 +1,4 @@
-// The instrument at the level of its stored points, for studies of strategies (issue #17):
+// The instrument at the level of its stored points, for studies of strategies:
 // bench/acquire_strategies charts bench time against alpha error over hundreds of simulated runs,
 // which the image-level simulator (sim/, a few seconds per point) cannot afford. Model no more
 // than the question needs: where a run spends its time and what each point's value and sigma are.
@@ -96,7 +96,7 @@ Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoin
 
 namespace gonio::acquisition {
 
-// A point bench that stands for a measured bench (issue #17, the estimate before a run): the
+// A point bench that stands for a measured bench (the estimate before a run): the
 // specimen's expected lobe at the bench's throughput (`lobe`: its k, floor, counts per value, dark
 // level and linear range) and the bench's noise per frame (`noise`, CalibrateFrameNoise on that
 // run's points). The rectangle is one "pixel" whose electrons per second per value is 1 / shot,

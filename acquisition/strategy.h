@@ -1,4 +1,4 @@
-// Strategies: where a run spends its bench time (issue #17; docs/acquisition.md).
+// Strategies: where a run spends its bench time (docs/acquisition.md).
 //
 // A plan's [strategy] (plan.h, StrategyPolicy) says which of the grid's points a run measures:
 // uniform (all), lobe (the expected lobe densely, the tails thinly) or adaptive. An adaptive run

@@ -373,7 +373,7 @@ bool AravisCamera::Stale(ArvBuffer* b) const {
 }
 
 Status AravisCamera::Trigger() {
-  // After a reopen that failed there is no camera: not a pool without buffers (issue #18).
+  // After a reopen that failed there is no camera: not a pool without buffers.
   if (camera_ == nullptr || stream_ == nullptr)
     return Error{ErrorCode::kNotConnected, "camera " + s_.address + " is not connected"};
   // The camera dropped our control (a missed heartbeat): it sends nothing until we take it again.

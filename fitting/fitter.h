@@ -1,4 +1,4 @@
-// Fits microfacet models to measured BTDF*cos samples with Ceres (issue #3; Walter 2007 section 6).
+// Fits microfacet models to measured BTDF*cos samples with Ceres (Walter 2007 section 6).
 //
 // Contract
 //   * Input: a span of transmission Samples (sample.h), checked by ValidateSamples. The fitter
@@ -46,14 +46,13 @@ enum class Loss { kNone, kHuber, kCauchy };
 // measurement removed. kAuto fits with and without it and keeps it when BIC prefers it by more
 // than 2 (positive evidence, Kass & Raftery 1995): "a floor the data need"; and also when leaving
 // it out moves the width by more than FitOptions::floor_width_tolerance of the width's sigma with
-// it, since BIC asks whether the data show the floor, not whether the width depends on it (a
-// floor at 2 sigma of its own moved antiglare's alpha by 1.2 sigma, and BIC left it out about
-// half the time: +0.4 sigma of bias over draws). Wherever BIC could not show the floor, that move
-// joins the width's sigma in quadrature (FitSummary::floor_width_shift, Parameter::sigma_floor),
-// whether the floor was then kept or left out: a floor kept for its move is chosen on the draw,
-// when the floor-fitted width lies far from the other, and without the move in sigma those fits
-// covered 13 of 16 on antiglare under 3 x 10 mm with a GGX truth (docs/measurement.md). On samples
-// whose background was each measured and subtracted (Sample::background_subtracted) it fits none.
+// it, since BIC asks whether the data show the floor, not whether the width depends on it.
+// Wherever BIC could not show the floor, that move joins the width's sigma in quadrature
+// (FitSummary::floor_width_shift, Parameter::sigma_floor), whether the floor was then kept or
+// left out: a floor kept for its move is chosen on the draw, when the floor-fitted width lies far
+// from the other, and the floor-fitted sigma alone is short for those fits (docs/measurement.md).
+// On samples whose background was each measured and subtracted (Sample::background_subtracted) it
+// fits none.
 enum class Floor { kOff, kFit, kAuto };
 enum class Derivatives { kAutomatic, kNumeric };
 // A sample held to the ray budget: its error traced one level finer, or the next level's change.
@@ -77,9 +76,7 @@ struct FitOptions {
   bool inflate_by_reduced_chi2 = true;
   Floor floor = Floor::kOff;
   // Floor::kAuto keeps the floor where leaving it out moves the width by more than this fraction
-  // of its sigma (with the floor), whatever BIC says; 0.5 left antiglare's alpha +0.11 sigma
-  // biased over 40 draws (BIC alone: +0.39), with a sigma 1.07 times the floor-less one.
-  // Infinity: BIC alone decides.
+  // of its sigma (with the floor), whatever BIC says. Infinity: BIC alone decides.
   double floor_width_tolerance = 0.5;
   // Samples that carry an instrument response (response.h) are modelled by it (eq. R1) where it
   // changes the prediction by more than this fraction of the sample's sigma at the current
@@ -98,7 +95,8 @@ struct FitOptions {
   // A held sample's error once the fit has settled: kTraced streams one level finer than the one
   // its model is corrected to, at the solution (a held step at its finest level has none left),
   // and solves again with that; kNextChange keeps the change from the held level to the next
-  // (no more rays; conservative: 10-100 times on antiglare under 3 x 10 mm, chi2/dof 0.2-0.9).
+  // (no more rays, but conservative: the change to the next level overstates the error where the
+  // levels converge fast).
   // A next level past 64 times the budget is not traced (ResponseUse::traced counts those that
   // were).
   HeldError held_error = HeldError::kTraced;
@@ -159,7 +157,7 @@ struct StageOffset {
   // thickness and the rectangle found: the offsets are solved inside the final refit, with the
   // geometry held where JointProfile put it. Both shift the lobe, so with few incidences the
   // offsets and the thickness trade against each other and the true offset can lie well beyond
-  // this sigma (issue #16's antiglare runs: the offsets found missed the simulator's by about
+  // this sigma (on antiglare runs the offsets found missed the simulator's by about
   // the prior). The width's sigma is not affected: it carries the geometry's part separately.
   double sigma_deg = 0;
 };

@@ -14,6 +14,7 @@ Result<std::vector<FitSummary>> FitEach(std::span<const Sample> samples, const P
   for (const ModelSpec& m : o.models) {
     FitOptions fo = o.base;
     fo.model = m;
+    if (o.stage) o.stage(Describe(m) + ", " + what);
     if (o.base.progress)
       fo.progress = [&o, label = Describe(m) + ", " + what + ": "](const std::string& s) {
         o.base.progress(label + s);

@@ -5,6 +5,7 @@
 // the joint fit is made.
 #pragma once
 
+#include <functional>
 #include <span>
 #include <string>
 #include <string_view>
@@ -28,6 +29,9 @@ struct ProtocolOptions {
   FitOptions base;                // each fit's options, its model replaced
   // |theta_l| below this counts as normal incidence (a read-back angle is never exactly 0).
   double normal_incidence_deg = 0.5;
+  // Told as each fit begins, with the model and the samples' part ("beckmann, normal
+  // incidence"); may be empty. base.progress, if set, is told each fit's steps with that prefix.
+  std::function<void(const std::string&)> stage;
 };
 
 struct ProtocolResult {

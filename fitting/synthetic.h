@@ -1,5 +1,5 @@
 // Synthetic sweeps of a known model with realistic noise, for tests and benchmarks of the fitter.
-// This is not the instrument simulator (sim/, issue #4): no images, stages or cameras, just
+// This is not the instrument simulator (sim/): no images, stages or cameras, just
 // S = k f |cos theta_l| at chosen geometries (f_t in transmission, f_r in reflection) with photon
 // shot noise and read noise.
 #pragma once

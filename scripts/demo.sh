@@ -25,12 +25,16 @@ while [[ $# -gt 0 ]]; do
 done
 
 scripts/install-deps.sh
-echo "== building gonio-sim, goniod, gonioctl, gonio-fit =="
-cmake -S . -B build -DGONIO_WERROR=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-cmake --build build -j "$(nproc)" --target gonio-sim goniod gonioctl gonio-fit
-
 work=out/demo
 mkdir -p "$work"
+echo "== building gonio-sim, goniod, gonioctl, gonio-fit (log: $work/build.log) =="
+if ! { cmake -S . -B build -DGONIO_WERROR=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo &&
+       cmake --build build -j "$(nproc)" --target gonio-sim goniod gonioctl gonio-fit; } \
+     > "$work/build.log" 2>&1; then
+  tail -30 "$work/build.log"
+  echo "demo.sh: the build failed (log: $work/build.log)" >&2
+  exit 1
+fi
 rm -f "$work"/runs.sqlite* "$work"/*.csv "$work"/port "$work"/mport "$work"/apiport
 if pgrep -x gonio-sim >/dev/null; then
   echo "demo.sh: a gonio-sim is already running; the simulated camera's GigE port is taken" >&2
@@ -77,7 +81,8 @@ took=$(($(date +%s) - start))
 ctl runs
 echo "== the same schedule priced again, now from run 1's exposures =="
 ctl schedule config/schedule_demo.toml --dry-run
-echo "(run 1 took ${took} s of wall time at the simulator's x$speed clock: about $((took * speed)) s of bench time, cooling included)"
+echo "(run 1 took ${took} s of wall time at the simulator's x$speed clock:" \
+  "about $((took * speed)) s of bench time, cooling included)"
 ctl fits 1
 ctl export 1 --out "$work/run1.csv"
 

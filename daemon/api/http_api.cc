@@ -84,7 +84,7 @@ json RunJson(const acquisition::RunInfo& r) {
          {"points_done", r.points_done},
          {"points_skipped", r.points_skipped}};
   o["monitor_reference_w"] = r.monitor_reference_w ? json(*r.monitor_reference_w) : json(nullptr);
-  // What the run was expected to cost and what its points took (issue #17).
+  // What the run was expected to cost and what its points took.
   o["estimate"] = r.estimate ? json{{"total_s", r.estimate->total_s},
                                     {"exposure_s", r.estimate->exposure_s},
                                     {"basis", r.estimate->basis}}
@@ -435,7 +435,7 @@ void ApiServer::RouteSchedules() {
     const auto dry_run = BoolField(*body, "dry_run", false, res);
     if (!dry_run) return;
     // Estimates price each point at what the newest finished run of the specimen needed, else
-    // at the specimen's expected lobe through the bench's throughput (issue #17).
+    // at the specimen's expected lobe through the bench's throughput.
     EstimateBasis basis;
     basis.history = [this](const std::string& specimen) {
       auto h = reader_->LatestExposures(specimen);
@@ -669,15 +669,15 @@ void ApiServer::RouteEvents() {
 void ApiServer::RouteCamera() {
   httplib::Server& srv = *server_;
   Controller& c = *controller_;
-  constexpr const char* kNoFrame =
+  static constexpr const char* kNoFrame =
       "no frame yet: frames show once a run measures a point, or after a snap (POST "
       "/api/v1/camera/snap)";
-  srv.Get("/api/v1/frame", [&c, kNoFrame](const httplib::Request&, httplib::Response& res) {
+  srv.Get("/api/v1/frame", [&c](const httplib::Request&, httplib::Response& res) {
     const auto f = c.frames().Get();
     if (!f) return ReplyError(res, 404, kNoFrame);
     Reply(res, 200, FrameJson(*f));
   });
-  srv.Get("/api/v1/frame/pixels", [&c, kNoFrame](const httplib::Request&, httplib::Response& res) {
+  srv.Get("/api/v1/frame/pixels", [&c](const httplib::Request&, httplib::Response& res) {
     const auto f = c.frames().Get();
     if (!f) return ReplyError(res, 404, kNoFrame);
     std::string body(f->pixels.size() * 2, '\0');

@@ -1,4 +1,4 @@
-// The operator's console (issue #20): a page that goniod serves beside its API, on the API's own
+// The operator's console: a page that goniod serves beside its API, on the API's own
 // address, so that an operator at the bench can watch and steer a run in a browser.
 //
 // Contract

@@ -1,4 +1,4 @@
-// Schedules: a TOML file listing jobs to run unattended (issue #7). Each [[job]] names a plan file
+// Schedules: a TOML file listing jobs to run unattended. Each [[job]] names a plan file
 // (relative to the schedule), how many times to run it, and optionally a start time, a cooler
 // wait before its first run, and the models to fit after each run:
 //

@@ -594,7 +594,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     }
     job.run = *run;
     SaveJob(job);  // a restart finds the run through its job
-    // What it is expected to cost, kept beside what it will cost (issue #17). An estimate that
+    // What it is expected to cost, kept beside what it will cost. An estimate that
     // cannot be made does not stop the run. An adaptive plan's simulates its runs (a second or
     // a few): made without the lock, so that status and the API answer meanwhile, in a state
     // that says a job is in hand (idle here once let `gonioctl wait` return before the run).

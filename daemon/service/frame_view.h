@@ -1,4 +1,4 @@
-// The latest camera frame, downscaled for the operator's console (issue #20): what the sensor
+// The latest camera frame, downscaled for the operator's console: what the sensor
 // saw at the last point measured, or at the last snap between runs. One frame is kept; a new one
 // replaces it. Readers get an immutable copy, so the API threads never wait on the engine.
 #pragma once

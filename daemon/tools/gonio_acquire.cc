@@ -1,5 +1,5 @@
 // gonio-acquire: runs a measurement plan on the instrument and stores it in SQLite, without the
-// daemon (issue #6; goniod of #7 runs the same engine behind its API).
+// daemon (goniod of #7 runs the same engine behind its API).
 //
 //   gonio-acquire -c config/instrument.toml --db runs.sqlite run plan.toml [--dry-run]
 //   gonio-acquire ... resume [RUN]        # an interrupted run (default: the latest one)
@@ -176,7 +176,7 @@ Result<std::optional<RunInfo>> RunToResume(Storage& store, std::int64_t run_id,
 
 // The plan's points, the skipped ones with their reasons, and the bench time it will take,
 // priced at the exposures the newest finished run of its specimen needed if there is one, else
-// at the specimen's expected lobe through the bench's throughput (issue #17).
+// at the specimen's expected lobe through the bench's throughput.
 Result<RunEstimate> PrintPlanSummary(Storage& store, const std::string& plan_path, const Plan& plan,
                                      const std::vector<PlannedPoint>& points,
                                      const config::InstrumentConfig& cfg) {

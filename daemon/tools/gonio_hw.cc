@@ -1,5 +1,5 @@
 // gonio-hw: check each device of the instrument by hand, through the same drivers the daemon
-// uses (issue #5). It reads the instrument config and opens only the device asked for.
+// uses. It reads the instrument config and opens only the device asked for.
 //
 //   gonio-hw -c config/instrument.toml camera info
 //   gonio-hw -c config/instrument.toml camera snap --exposure 0.2 --out frame.png

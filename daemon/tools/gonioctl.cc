@@ -1,8 +1,9 @@
 // gonioctl: the operator's command line, talking to goniod's API (docs/api.md).
 //
-//   gonioctl [--url http://127.0.0.1:8470] [--token-file F] [--json] COMMAND
+//   gonioctl [--url http://127.0.0.1:8470] [--token-file F] [--json] [-v] COMMAND
 //     status                     state, current job, progress
-//     submit PLAN [--repeat N] [--wait]   queue a plan file (validated by the daemon)
+//     submit PLAN [--repeat N] [--wait] [--dry-run]
+//                                queue a plan file (validated by the daemon), or only price it
 //     schedule FILE [--dry-run] [--wait]  queue a schedule's jobs (or list them, with timings)
 //     fit RUN [--model beckmann,ggx]      fit a stored run; the results are stored with it
 //     fits RUN                   the fits stored with a run (a schedule's, or fit's)
@@ -21,6 +22,7 @@
 #include <httplib.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -35,7 +37,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "common/progress_line.h"
 #include "common/text.h"
+#include "common/wrap.h"
 #include "daemon/schedule/schedule.h"
 
 namespace {
@@ -155,32 +159,48 @@ void PrintStatus(const json& s) {
   std::cout << "queued: " << s.value("queued", 0) << "\n";
 }
 
-// A bar redrawn in place on a terminal; in a log (not a tty), a line each tenth of the run.
-void Bar(int done, int total, double eta_s, const std::string& state) {
-  static int last = -1;
-  if (!::isatty(2)) {
-    const int tenth = total > 0 ? done * 10 / total : 0;
-    if (tenth == last) return;
-    last = tenth;
-    std::cerr << done << "/" << total << " points  " << state << "  ETA " << Duration(eta_s)
-              << "\n";
-    return;
+// A run's progress: on a terminal a bar redrawn in place; in a log (not a terminal) a line when
+// the state changes and at each quarter of the run, so that a log reads as its stages.
+class ProgressBar {
+ public:
+  void Show(int done, int total, double eta_s, const std::string& state) {
+    std::ostringstream text;
+    if (line_.terminal()) {
+      const int width = 40;
+      const int filled = total > 0 ? std::clamp(done * width / total, 0, width) : 0;
+      text << "[" << std::string(filled, '#') << std::string(width - filled, '.') << "] ";
+    }
+    text << done << "/" << total << " points  " << state << "  ETA " << Duration(eta_s);
+    const int quarter = total > 0 ? done * 4 / total : 0;
+    if (line_.terminal())
+      line_.Stage(text.str());
+    else if (quarter != quarter_ || state != state_)
+      line_.Stage(text.str());
+    quarter_ = quarter;
+    state_ = state;
   }
-  const int width = 40;
-  const int filled = total > 0 ? done * width / total : 0;
-  std::cerr << "\r[" << std::string(filled, '#') << std::string(width - filled, '.') << "] " << done
-            << "/" << total << "  " << state << "  ETA " << Duration(eta_s) << "   " << std::flush;
-}
+  void Done() { line_.Done(); }
+
+ private:
+  gonio::ProgressLine line_{std::cerr, ::isatty(2) != 0};
+  int quarter_ = -1;
+  std::string state_;
+};
 
 // What every subcommand shares: the API, how to print its replies, and waiting for the daemon.
 class Ctl {
  public:
-  Ctl(std::string url, const std::string& token, bool as_json, double timeout_s)
-      : url_(std::move(url)), api_(url_, token), as_json_(as_json), timeout_s_(timeout_s) {}
+  Ctl(std::string url, const std::string& token, bool as_json, bool explain, double timeout_s)
+      : url_(std::move(url)),
+        api_(url_, token),
+        as_json_(as_json),
+        explain_(explain),
+        timeout_s_(timeout_s) {}
 
   Api& api() { return api_; }
   const std::string& url() const { return url_; }
   bool as_json() const { return as_json_; }
+  bool explain() const { return explain_; }
 
   // A reply as JSON (--json) or through `human`; an error reply's message and exit code.
   int Print(const Reply& r, const std::function<void(const json&)>& human) const {
@@ -204,17 +224,20 @@ class Ctl {
         last_run = r.j["job"]["run"].get<std::int64_t>();
       if (r.j["progress"].is_object()) {
         const json& p = r.j["progress"];
-        if (!as_json_) Bar(p.value("done", 0), p.value("total", 0), p.value("eta_s", 0.0), state);
+        if (!as_json_)
+          bar_.Show(p.value("done", 0), p.value("total", 0), p.value("eta_s", 0.0), state);
       }
       if (state == "idle" && r.j.value("queued", 0) == 0) return Outcome(state, last_run);
       if (state == "fault") {
-        std::cerr << "\ngonioctl: fault: " << r.j.value("reason", "") << "\n";
+        bar_.Done();
+        std::cerr << "gonioctl: fault: " << r.j.value("reason", "") << "\n";
         return 3;
       }
       if (timeout_s_ > 0 &&
           std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() >
               timeout_s_) {
-        std::cerr << "\ngonioctl: still " << state << " after " << timeout_s_ << " s\n";
+        bar_.Done();
+        std::cerr << "gonioctl: still " << state << " after " << timeout_s_ << " s\n";
         return 3;
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(500));
@@ -223,7 +246,7 @@ class Ctl {
 
  private:
   int Outcome(const std::string& state, std::int64_t last_run) {
-    if (!as_json_ && ::isatty(2)) std::cerr << "\n";
+    bar_.Done();
     Reply jobs = api_.Get("/api/v1/jobs");
     std::string outcome = "done";
     if (jobs.status == 200)
@@ -238,8 +261,10 @@ class Ctl {
   }
 
   std::string url_;
+  ProgressBar bar_;
   Api api_;
   bool as_json_;
+  bool explain_;
   double timeout_s_;
 };
 
@@ -252,23 +277,6 @@ std::optional<std::string> ReadText(const std::string& path) {
     return std::nullopt;
   }
   return std::move(text).value();
-}
-
-int Submit(Ctl& ctl, const std::string& plan_path, int repeat, bool wait_after) {
-  const auto plan = ReadText(plan_path);
-  if (!plan) return 2;
-  const json body{{"name", plan_path}, {"plan", *plan}, {"repeat", repeat}};
-  const int rc = ctl.Print(ctl.api().Post("/api/v1/jobs", body), [](const json& j) {
-    auto one = [](const json& x) {
-      std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
-    };
-    if (j.contains("jobs"))
-      for (const json& x : j["jobs"]) one(x);
-    else
-      one(j);
-  });
-  if (rc != 0 || !wait_after) return rc;
-  return ctl.WaitIdle();
 }
 
 void PrintScheduleEntry(const json& x) {
@@ -287,6 +295,42 @@ void PrintScheduleEntry(const json& x) {
     std::cout << "; first cool to " << x["cooler_setpoint_c"].get<double>() << " C";
   if (!x["fit"].empty()) std::cout << "; fit " << x["fit"].dump() << " after each";
   std::cout << "\n";
+}
+
+// A plan's dry run: priced by the daemon as a schedule of one job (the same validation and
+// estimate as a schedule's dry run), nothing queued.
+int DryRunPlan(Ctl& ctl, const std::string& plan_path, const std::string& plan, int repeat) {
+  // The plan's name as a TOML basic string: JSON's escapes are TOML's.
+  const std::string schedule =
+      "[[job]]\nplan = " + json(plan_path).dump() + "\nrepeat = " + std::to_string(repeat) + "\n";
+  const json body{{"name", plan_path},
+                  {"schedule", schedule},
+                  {"plans", {{plan_path, plan}}},
+                  {"dry_run", true}};
+  return ctl.Print(ctl.api().Post("/api/v1/schedules", body), [&](const json& j) {
+    std::cout << "plan " << plan_path << " (dry run; nothing queued):\n";
+    for (const json& x : j["jobs"]) PrintScheduleEntry(x);
+    std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
+              << " of bench time for motion and exposure\n";
+  });
+}
+
+int Submit(Ctl& ctl, const std::string& plan_path, int repeat, bool wait_after, bool dry_run) {
+  const auto plan = ReadText(plan_path);
+  if (!plan) return 2;
+  if (dry_run) return DryRunPlan(ctl, plan_path, *plan, repeat);
+  const json body{{"name", plan_path}, {"plan", *plan}, {"repeat", repeat}};
+  const int rc = ctl.Print(ctl.api().Post("/api/v1/jobs", body), [](const json& j) {
+    auto one = [](const json& x) {
+      std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
+    };
+    if (j.contains("jobs"))
+      for (const json& x : j["jobs"]) one(x);
+    else
+      one(j);
+  });
+  if (rc != 0 || !wait_after) return rc;
+  return ctl.WaitIdle();
 }
 
 int Schedule(Ctl& ctl, const std::string& schedule_path, bool dry_run, bool wait_after) {
@@ -332,18 +376,32 @@ int Schedule(Ctl& ctl, const std::string& schedule_path, bool dry_run, bool wait
   return ctl.WaitIdle();
 }
 
-void PrintFit(const json& f) {
-  std::cout << "  " << std::setw(10) << f.value("model", "") << "  " << f.value("width_name", "")
-            << " " << f["width"]["value"] << " +- " << f["width"]["sigma"] << "  chi2/dof "
-            << f["reduced_chi2"] << "  " << f.value("status", "");
+// A number with `digits` significant digits.
+std::string Sig(double v, int digits) {
+  std::ostringstream o;
+  o << std::setprecision(digits) << v;
+  return o.str();
+}
+
+// A stored fit in a line: the width with two digits of its sigma, chi2/dof and the status; with
+// `explain`, how the geometry entered it (fitting/fitter.h, GeometryUse), wrapped.
+void PrintFit(const json& f, bool explain) {
+  const double w = f["width"].value("sigma", 0.0);
+  const int digits = w > 0 && std::isfinite(w)
+                         ? std::clamp(1 - static_cast<int>(std::floor(std::log10(w))), 0, 12)
+                         : 4;
+  std::ostringstream width;
+  width << std::fixed << std::setprecision(digits) << f["width"].value("value", 0.0) << " +- " << w;
+  std::cout << "  " << std::left << std::setw(10) << f.value("model", "") << std::right << " "
+            << f.value("width_name", "") << " " << width.str() << "  chi2/dof "
+            << Sig(f.value("reduced_chi2", 0.0), 4) << "  " << f.value("status", "");
   if (f.contains("samples")) std::cout << " (" << f["samples"].get<std::string>() << ")";
   std::cout << "\n";
-  // The geometry's share of the width's sigma, the nuisance parameters chi2/dof counts, and the
-  // sample stage's offset per sweep (fitting/fitter.h, GeometryUse), when the run stated them.
+  if (!explain) return;
   const json g = f.value("geometry", json::object());
   if (!g.value("stated", false)) return;
   std::ostringstream line;
-  line << std::setprecision(3) << "    geometry: " << f["width"].value("sigma_geometry", 0.0)
+  line << std::setprecision(3) << "geometry: " << f["width"].value("sigma_geometry", 0.0)
        << " of the sigma; chi2/dof counts " << f.value("n_nuisance", 0.0)
        << " nuisance parameter(s)";
   const json stage = g.value("sample_stage", json::array());
@@ -353,14 +411,14 @@ void PrintFit(const json& f) {
       line << " at " << s.value("sample_deg", 0.0) << " " << std::showpos
            << s.value("offset_deg", 0.0) << std::noshowpos << " +- " << s.value("sigma_deg", 0.0);
   }
-  std::cout << line.str() << "\n";
+  std::cout << gonio::Wrap(line.str(), 100, "    ", "      ");
 }
 
 int Fits(Ctl& ctl, std::int64_t id) {
   return ctl.Print(ctl.api().Get("/api/v1/runs/" + std::to_string(id) + "/fits"),
                    [&](const json& j) {
                      std::cout << "run " << id << ": " << j["fits"].size() << " stored fit(s)\n";
-                     for (const json& f : j["fits"]) PrintFit(f["summary"]);
+                     for (const json& f : j["fits"]) PrintFit(f["summary"], ctl.explain());
                    });
 }
 
@@ -381,7 +439,7 @@ int Fit(Ctl& ctl, std::int64_t id, const std::string& models) {
                                          {{"models", ModelList(models)}}, kFitWaitS),
                    [&](const json& j) {
                      std::cout << "run " << id << ":\n";
-                     for (const json& f : j["fits"]) PrintFit(f);
+                     for (const json& f : j["fits"]) PrintFit(f, ctl.explain());
                    });
 }
 
@@ -413,7 +471,7 @@ int Show(Ctl& ctl, std::int64_t id) {
   return ctl.Print(ctl.api().Get("/api/v1/runs/" + std::to_string(id)), [](const json& r) {
     std::cout << "run " << r["id"] << " (" << r.value("specimen", "")
               << "): " << r.value("status", "") << ", " << r["points_done"] << " points\n";
-    // What the run was expected to cost and what its points took (issue #17).
+    // What the run was expected to cost and what its points took.
     const bool exposed = r.contains("exposed_s") && r["exposed_s"].is_number();
     const bool estimated = r.contains("estimate") && r["estimate"].is_object();
     if (exposed) std::cout << "exposure " << std::lround(r["exposed_s"].get<double>()) << " s";
@@ -511,6 +569,8 @@ static int Main(int argc, char** argv) {
   app.add_option("--url", url, "goniod's API")->capture_default_str();
   app.add_option("--token-file", token_file, "the daemon's token (for submit, pause, ...)");
   app.add_flag("--json", as_json, "print the daemon's JSON replies (for scripts)");
+  bool explain = false;
+  app.add_flag("-v,--verbose", explain, "details: how the geometry entered each fit (fits, fit)");
 
   std::string plan_path, out, schedule_path, models = "beckmann,ggx";
   int repeat = 1, position = 0;
@@ -523,6 +583,7 @@ static int Main(int argc, char** argv) {
   submit->add_option("plan", plan_path)->required()->check(CLI::ExistingFile);
   submit->add_option("--repeat", repeat, "queue it N times")->capture_default_str();
   submit->add_flag("--wait", wait_after, "then wait until the daemon is idle");
+  submit->add_flag("--dry-run", dry_run, "price it and list its points; queue nothing");
   auto* queue = app.add_subcommand("queue", "list jobs");
   auto* cancel = app.add_subcommand("cancel", "cancel a queued job");
   cancel->add_option("job", id)->required();
@@ -573,10 +634,10 @@ static int Main(int argc, char** argv) {
       return 2;
     }
   }
-  Ctl ctl(url, token, as_json, timeout_s);
+  Ctl ctl(url, token, as_json, explain, timeout_s);
   Api& api = ctl.api();
   if (*status) return ctl.Print(api.Get("/api/v1/status"), PrintStatus);
-  if (*submit) return Submit(ctl, plan_path, repeat, wait_after);
+  if (*submit) return Submit(ctl, plan_path, repeat, wait_after, dry_run);
   if (*sched) return Schedule(ctl, schedule_path, dry_run, wait_after);
   if (*fits) return Fits(ctl, id);
   if (*fit) return Fit(ctl, id, models);

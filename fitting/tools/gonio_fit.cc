@@ -6,7 +6,9 @@
 //   gonio-fit samples.csv --model beckmann,ggx --out fit/
 //
 // Exit status: 0 when at least one model was fitted, 1 when every fit failed, 2 for bad input.
+#include <unistd.h>
 #include <CLI/CLI.hpp>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -16,12 +18,16 @@
 #include <iomanip>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 
+#include "common/progress_line.h"
+#include "common/wrap.h"
 #include "fitting/fitter.h"
 #include "fitting/protocol.h"
 #include "fitting/samples_csv.h"
 #include "fitting/summary_json.h"
+#include "fitting/tools/fit_report.h"
 
 namespace {
 
@@ -34,110 +40,6 @@ std::vector<std::string> Split(const std::string& s) {
   for (std::string item; std::getline(ss, item, ',');)
     if (!item.empty()) out.push_back(item);
   return out;
-}
-
-// The value and its sigma, with at least two significant digits of the sigma.
-std::string PlusMinus(const Parameter& p, int precision) {
-  if (p.sigma > 0 && std::isfinite(p.sigma))
-    precision = std::clamp(1 - static_cast<int>(std::floor(std::log10(p.sigma))), precision, 12);
-  std::ostringstream os;
-  os << std::fixed << std::setprecision(precision) << p.value;
-  if (p.sigma > 0) os << " +- " << p.sigma;
-  return os.str();
-}
-
-void PrintFits(const std::string& title, const std::vector<FitSummary>& fits,
-               const ModelChoice& choice) {
-  std::cout << "\n" << title << "\n";
-  std::cout << std::left << std::setw(24) << "model" << std::setw(22) << "scale k" << std::setw(30)
-            << "width" << std::setw(10) << "alpha_eq" << std::setw(18) << "eta" << std::setw(10)
-            << "chi2/dof" << std::setw(10) << "dBIC"
-            << "status\n";
-  // A cell padded to its column, or followed by one space where it is wider (a width with many
-  // digits ran into alpha_eq: "0.000000950.023").
-  auto cell = [](const std::string& text, std::size_t w) {
-    return text.size() < w ? text + std::string(w - text.size(), ' ') : text + " ";
-  };
-  auto number = [](double v, int precision) {
-    std::ostringstream os;
-    os << std::setprecision(precision) << v;
-    return os.str();
-  };
-  for (std::size_t k = 0; k < fits.size(); ++k) {
-    const FitSummary& f = fits[k];
-    std::ostringstream width;
-    width << WidthName(f.model.family) << " " << PlusMinus(f.width, 4);
-    std::cout << cell(Describe(f.model), 24) << cell(PlusMinus(f.scale, 4), 22)
-              << cell(width.str(), 30) << cell(number(f.alpha_equivalent, 4), 10)
-              << cell(PlusMinus(f.eta, 3), 18) << cell(number(f.reduced_chi2, 4), 10)
-              << cell(number(choice.delta_bic[k], 3), 10) << ToString(f.status) << "\n";
-    if (!f.message.empty()) std::cout << "    " << Describe(f.model) << ": " << f.message << "\n";
-    if (f.width.sigma_stat > 0 || f.width.sigma_geometry > 0) {
-      const Parameter& w = f.width;
-      std::cout << "    " << WidthName(f.model.family) << "'s sigma " << std::setprecision(3)
-                << w.sigma << ": statistical (shot, read, dark) " << w.sigma_stat
-                << ", instrument (lamp, monitor" << (f.reduced_chi2 > 1 ? ", chi2 inflation" : "")
-                << ") "
-                << std::sqrt(std::max(0.0, w.sigma * w.sigma - w.sigma_stat * w.sigma_stat -
-                                               w.sigma_geometry * w.sigma_geometry -
-                                               w.sigma_floor * w.sigma_floor))
-                << ", geometry " << w.sigma_geometry;
-      if (w.sigma_floor > 0) std::cout << ", the floor's choice " << w.sigma_floor;
-      std::cout << "\n";
-    }
-    if (!f.geometry.note.empty()) std::cout << "    geometry: " << f.geometry.note << "\n";
-    if (f.response.samples_with_response > 0)
-      std::cout << "    instrument response: " << f.response.rectangle << " of " << f.n_points
-                << " samples through the rectangle's rays (" << f.response.apertures
-                << " with the apertures too), " << f.response.rays
-                << " model evaluations per pass, " << f.response.rounds << " solve(s); "
-                << std::setprecision(3) << f.seconds << " s\n";
-    if (f.response.capped > 0 && f.response.traced > 0)
-      std::cout << "    ray budget: " << f.response.capped
-                << " sample(s) modelled below the level the tolerance asked for (more than "
-                   "--max-response-rays), corrected to the next level; its error, traced one "
-                   "level finer for "
-                << f.response.traced << " of them, is in their sigma, at most "
-                << std::setprecision(3) << f.response.capped_largest
-                << " of the sample's own (the change to the next level was "
-                << f.response.capped_untraced_largest << ")\n";
-    else if (f.response.capped > 0)
-      std::cout << "    ray budget: " << f.response.capped
-                << " sample(s) modelled below the level the tolerance asked for (more than "
-                   "--max-response-rays), corrected to the next level; the difference is in "
-                   "their sigma, at most "
-                << std::setprecision(3) << f.response.capped_largest << " of the sample's own\n";
-    if (f.dark.sets > 0)
-      std::cout << "    dark sets: " << f.dark.sets << " shared error(s) in the fit, over "
-                << f.dark.samples << " samples (the largest found: " << std::setprecision(2)
-                << f.dark.largest_z << " of its sigma)\n";
-    if (f.floor_fitted)
-      std::cout << "    floor: " << PlusMinus(f.floor, 6) << " (" << f.floor_choice << ")\n";
-    else if (!f.floor_choice.empty())
-      std::cout << "    " << f.floor_choice << "\n";
-  }
-  std::cout << "model choice: " << choice.reason << "\n";
-}
-
-// The paper's protocol: the normal-incidence fits and their predictions of the other incidences.
-void PrintProtocol(const ProtocolResult& r) {
-  PrintFits("Fit at normal incidence (Walter 2007 section 6, Figure 12):", r.normal_fits,
-            SelectModel(r.normal_fits));
-  std::cout << "\nPrediction of the other incidences from the normal-incidence fit "
-               "(rms relative error over samples above 1 % of peak; chi2/n):\n";
-  std::cout << std::left << std::setw(12) << "theta_l";
-  for (const auto& f : r.normal_fits) std::cout << std::setw(28) << Describe(f.model);
-  std::cout << "\n";
-  for (std::size_t g = 0; g < r.groups.size(); ++g) {
-    std::cout << std::setw(12) << r.groups[g].theta_l_deg;
-    for (const auto& p : r.predictions) {
-      std::ostringstream cell;
-      cell << std::setprecision(3) << 100 * p[g].rms_relative << " %  (" << p[g].reduced_chi2
-           << ")";
-      std::cout << std::setw(28) << cell.str();
-    }
-    std::cout << "\n";
-  }
 }
 
 // --out: the curves of the fits that describe the lobe, the empirical and fitted D, and the JSON
@@ -195,127 +97,155 @@ Status WriteOutputs(const std::string& out_dir, const std::string& csv_path,
   return OkStatus();
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos or BRDF*cos samples"};
-  std::string csv_path, models_arg = "beckmann,ggx", loss_arg = "none", out_dir, floor_arg = "auto";
-  bool point_model = false;
+// The command line, parsed and checked: what a fit is asked to do.
+struct Command {
+  std::string csv_path, out_dir;
+  std::vector<ModelSpec> models;
   FitOptions base;
-  double start = 0, systematic = 0;
-  bool rational = false;
-  app.add_option("samples", csv_path,
+  double systematic = 0;
+  bool quiet = false, verbose = false, explain = false;
+};
+
+// Fills `c` from the command line; nullopt to go on, else the exit code (help printed, or a bad
+// option named on standard error).
+std::optional<int> ParseCommand(int argc, char** argv, Command& c) {
+  CLI::App app{"Fit microfacet models (Walter 2007, Sun 2008) to BTDF*cos or BRDF*cos samples"};
+  std::string models_arg = "beckmann,ggx", loss_arg = "none", floor_arg = "auto";
+  std::string held_arg = "traced";
+  bool point_model = false, rational = false;
+  double start = 0;
+  app.add_option("samples", c.csv_path,
                  "CSV with columns theta_l_deg, theta_v_deg, value, sigma [, phi_l_deg, phi_v_deg]")
       ->required();
   app.add_option("--model", models_arg, "comma-separated: beckmann, ggx, phong, sun2008")
       ->capture_default_str();
-  app.add_option("--eta", base.eta, "refractive index of the sample (fixed, or start)")
+  app.add_option("--eta", c.base.eta, "refractive index of the sample (fixed, or start)")
       ->capture_default_str();
-  app.add_flag("--fit-eta", base.fit_eta, "fit eta as a third parameter");
+  app.add_flag("--fit-eta", c.base.fit_eta, "fit eta as a third parameter");
   app.add_option("--loss", loss_arg, "none, huber or cauchy (robust against stray light)")
+      ->check(CLI::IsMember({"none", "huber", "cauchy"}))
       ->capture_default_str();
-  app.add_option("--loss-scale", base.loss_scale, "robust loss scale in sigmas")
+  app.add_option("--loss-scale", c.base.loss_scale, "robust loss scale in sigmas")
       ->capture_default_str();
-  app.add_option("--systematic", systematic,
+  app.add_option("--systematic", c.systematic,
                  "relative systematic uncertainty added in quadrature to every sigma (e.g. 0.01 "
                  "for a bench whose stored sigma is statistical only)")
       ->capture_default_str();
   app.add_option("--start", start,
                  "starting width (alpha, exponent or s) in addition to the automatic starts");
   app.add_flag("--rational-g1", rational, "Beckmann with Walter's rational G1 (eq. 27)");
-  app.add_option(
-         "--floor", floor_arg,
-         "a constant floor (stray light): auto (kept when BIC prefers it or when leaving it out "
-         "moves the width by more than half its sigma; where BIC does not, that move is in "
-         "sigma either way), on or off")
+  app.add_option("--floor", floor_arg,
+                 "a constant floor (stray light): auto (kept when BIC prefers it or when leaving "
+                 "it out moves the width by more than half its sigma; where BIC does not, that "
+                 "move is in sigma either way), on or off")
+      ->check(CLI::IsMember({"auto", "on", "off"}))
       ->capture_default_str();
   app.add_flag("--point-model", point_model,
                "ignore the samples' instrument response (an export's '# response:' line)");
-  app.add_option("--response-tolerance", base.response_tolerance,
+  app.add_option("--response-tolerance", c.base.response_tolerance,
                  "use a sample's response where it changes the prediction by more than this "
                  "fraction of its sigma")
       ->capture_default_str();
-  app.add_option("--max-response-rays", base.max_response_rays,
+  app.add_option("--max-response-rays", c.base.max_response_rays,
                  "the most rays one sample's model may hold; past it the model is corrected to "
                  "the next level, whose error joins the sample's sigma (--held-error)")
       ->capture_default_str();
-  std::string held_arg = "traced";
   app.add_option("--held-error", held_arg,
                  "a held sample's error: traced (one level finer, once at the solution) or next "
                  "(the whole change to the next level: no more rays, conservative)")
       ->check(CLI::IsMember({"traced", "next"}))
       ->capture_default_str();
-  bool quiet = false;
-  app.add_flag("--quiet", quiet, "no progress on standard error, however long the fit");
-  app.add_option("--out", out_dir,
+  app.add_flag("--explain", c.explain,
+               "after each fit, how the geometry, the instrument response, the ray budget, the "
+               "dark sets and the floor's choice entered it");
+  app.add_flag("-v,--verbose", c.verbose,
+               "every step of every solve on standard error, and --explain");
+  app.add_flag("-q,--quiet", c.quiet, "no progress on standard error, however long the fit");
+  app.add_option("--out", c.out_dir,
                  "directory for fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json");
-  CLI11_PARSE(app, argc, argv);
-
-  auto fail_input = [](const std::string& msg) {
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  auto fail = [](const std::string& msg) {
     std::cerr << "gonio-fit: error: " << msg << "\n";
     return 2;
   };
-  const auto names = Split(models_arg);
-  auto models = ParseModels(
-      names, rational ? gonio::optics::SmithG1::kRational : gonio::optics::SmithG1::kExact);
-  if (!models) return fail_input("--model: " + models.error().message);
-  if (loss_arg == "huber")
-    base.loss = Loss::kHuber;
-  else if (loss_arg == "cauchy")
-    base.loss = Loss::kCauchy;
-  else if (loss_arg != "none")
-    return fail_input("--loss: '" + loss_arg + "' is not none, huber or cauchy");
-  if (start != 0) base.initial_width = start;
-  base.held_error = held_arg == "next" ? HeldError::kNextChange : HeldError::kTraced;
-  if (floor_arg == "auto")
-    base.floor = Floor::kAuto;
-  else if (floor_arg == "on")
-    base.floor = Floor::kFit;
-  else if (floor_arg == "off")
-    base.floor = Floor::kOff;
-  else
-    return fail_input("--floor: '" + floor_arg + "' is not auto, on or off");
-  base.use_response = !point_model;
-  if (auto s = base.Validate(); !s) return fail_input(s.error().message);
-  if (!std::isfinite(systematic) || systematic < 0 || systematic >= 1)
-    return fail_input("--systematic: " + std::to_string(systematic) +
-                      " is not a fraction in [0, 1)");
+  auto models = ParseModels(Split(models_arg), rational ? gonio::optics::SmithG1::kRational
+                                                        : gonio::optics::SmithG1::kExact);
+  if (!models) return fail("--model: " + models.error().message);
+  c.models = *models;
+  c.base.loss = loss_arg == "huber"    ? Loss::kHuber
+                : loss_arg == "cauchy" ? Loss::kCauchy
+                                       : Loss::kNone;
+  c.base.floor = floor_arg == "on" ? Floor::kFit : floor_arg == "off" ? Floor::kOff : Floor::kAuto;
+  c.base.held_error = held_arg == "next" ? HeldError::kNextChange : HeldError::kTraced;
+  if (start != 0) c.base.initial_width = start;
+  c.base.use_response = !point_model;
+  if (auto s = c.base.Validate(); !s) return fail(s.error().message);
+  if (!std::isfinite(c.systematic) || c.systematic < 0 || c.systematic >= 1)
+    return fail("--systematic: " + std::to_string(c.systematic) + " is not a fraction in [0, 1)");
+  c.explain = c.explain || c.verbose;
+  return std::nullopt;
+}
 
-  auto samples = ReadSamplesCsv(csv_path);
-  if (!samples) return fail_input(samples.error().message);
-  if (auto s = ValidateSamples(*samples, base.NumParams(), csv_path); !s)
-    return fail_input(s.error().message);
-  if (systematic > 0) *samples = WithSystematic(*samples, systematic);
+}  // namespace
 
-  // Progress on standard error once a fit has run for a few seconds (a narrow lobe under a large
-  // rectangle takes minutes); short fits stay quiet.
+int main(int argc, char** argv) {
+  Command c;
+  if (auto rc = ParseCommand(argc, argv, c)) return *rc;
+  auto samples = ReadSamplesCsv(c.csv_path);
+  if (!samples) {
+    std::cerr << "gonio-fit: error: " << samples.error().message << "\n";
+    return 2;
+  }
+  if (auto s = ValidateSamples(*samples, c.base.NumParams(), c.csv_path); !s) {
+    std::cerr << "gonio-fit: error: " << s.error().message << "\n";
+    return 2;
+  }
+  if (c.systematic > 0) *samples = WithSystematic(*samples, c.systematic);
+
+  // Progress on standard error: on a terminal one line redrawn (each stage, each solve's step);
+  // in a log a line per model and part; with -v every step with its time.
+  ProgressLine progress(std::cerr, !c.quiet && !c.verbose && ::isatty(2) != 0);
   const auto t0 = std::chrono::steady_clock::now();
-  if (!quiet)
-    base.progress = [t0](const std::string& what) {
-      const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (s >= 5) std::cerr << "gonio-fit: [" << std::lround(s) << " s] " << what << std::endl;
+  auto elapsed = [t0] {
+    return std::lround(
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  };
+  ProtocolOptions protocol;
+  protocol.models = c.models;
+  protocol.base = c.base;
+  if (c.verbose) {
+    protocol.base.progress = [&elapsed](const std::string& what) {
+      std::cerr << "gonio-fit: [" << elapsed() << " s] " << what << std::endl;
     };
-  auto run = RunProtocol(*samples, ProtocolOptions{.models = *models, .base = base});
+  } else if (!c.quiet) {
+    protocol.stage = [&](const std::string& what) {
+      progress.Stage("gonio-fit: [" + std::to_string(elapsed()) + " s] fitting " + what);
+    };
+    if (progress.terminal())
+      protocol.base.progress = [&](const std::string& s) { progress.Step(s); };
+  }
+  auto run = RunProtocol(*samples, protocol);
+  progress.Done();
   if (!run) {
     std::cerr << "gonio-fit: error: " << run.error().message << "\n";
     return 1;
   }
-  const ProtocolResult& result = *run;
-  std::cout << "gonio-fit: " << samples->size() << " samples from " << csv_path << ", "
-            << result.groups.size() << " incidence(s):";
-  for (const auto& g : result.groups)
-    std::cout << " " << g.theta_l_deg << " (" << g.samples.size() << ")";
-  std::cout << "\n";
-  if (result.protocol) PrintProtocol(result);
-  PrintFits(result.protocol ? "Joint fit of all incidences:" : "Fit:", result.joint_fits,
-            result.choice);
-
-  if (!out_dir.empty()) {
-    if (Status w = WriteOutputs(out_dir, csv_path, *samples, result); !w.ok())
-      return fail_input(w.error().message);
-    std::cout << "\nwrote " << out_dir
-              << "/{fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json"
-              << (result.protocol ? ", fit_curves_joint.csv" : "") << "}\n";
+  PrintSamplesLine(std::cout, c.csv_path, samples->size(), *run, c.base.eta, c.base.fit_eta);
+  PrintProtocolResult(std::cout, *run, ReportOptions{.explain = c.explain});
+  if (!c.out_dir.empty()) {
+    if (Status w = WriteOutputs(c.out_dir, c.csv_path, *samples, *run); !w.ok()) {
+      std::cerr << "gonio-fit: error: " << w.error().message << "\n";
+      return 2;
+    }
+    std::cout << "\n"
+              << Wrap("wrote " + c.out_dir +
+                          "/{fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json" +
+                          (run->protocol ? ", fit_curves_joint.csv" : "") + "}",
+                      kReportColumns, "", "  ");
   }
-  return result.AnyFitted() ? 0 : 1;
+  return run->AnyFitted() ? 0 : 1;
 }

@@ -1,4 +1,4 @@
-// The fault plan (issue #4): which device faults to inject, when, and how often - from gonio-sim's
+// The fault plan: which device faults to inject, when, and how often - from gonio-sim's
 // config ([[faults.event]], config/sim.toml) or from a test. Each device asks the plan at each of
 // its opportunities (a Modbus request, a move, a frame, a monitor query, a firmware tick) whether
 // a fault fires now, and then shows it at the protocol level as real hardware would: a Modbus

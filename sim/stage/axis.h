@@ -1,7 +1,7 @@
 // One simulated rotation-stage driver at the register level: the Modbus holding registers of an
 // Oriental Motor AZ-style driver in "direct data operation" (docs/reference.md section 4), the map
 // written out in full in docs/stage_register_map.md. One axis is one Modbus slave, as AZ drivers
-// on an RS-485 line. The protocol servers of issue #4 (libmodbus TCP and RTU) wrap it: after a
+// on an RS-485 line. The protocol servers (libmodbus TCP and RTU) wrap it: after a
 // write they call OnWrite(); before a read they call Refresh(). No networking here.
 #pragma once
 

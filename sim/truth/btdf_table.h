@@ -1,5 +1,5 @@
 // A transmitted BTDF tabulated over view directions, with its Monte Carlo standard error: what
-// the Monte Carlo ground truths produce and what the scene reads (sim/, issue #8).
+// the Monte Carlo ground truths produce and what the scene reads (sim/).
 #pragma once
 
 #include <cmath>

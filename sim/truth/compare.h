@@ -1,4 +1,4 @@
-// Comparing a Monte Carlo table with an analytic BTDF on the same bins (issue #8).
+// Comparing a Monte Carlo table with an analytic BTDF on the same bins.
 #pragma once
 
 #include <functional>

@@ -1,4 +1,4 @@
-// The sample's ground truth behind one interface (issue #4's scene reads it; issue #8 fills it):
+// The sample's ground truth behind one interface (the scene reads it; sim/truth/ fills it):
 // the BTDF*cos the bench would measure, S/k = f_t(l, v) |cos theta_l|, from an analytic
 // single-scattering model or a Monte Carlo table. ChooseGroundTruth picks the cheapest one whose
 // error is below the measurement noise ("model no more than the scene needs") and says why.

@@ -1,4 +1,4 @@
-// Ground truth that does not go through the microfacet BTDF formulas (issue #8): Monte Carlo
+// Ground truth that does not go through the microfacet BTDF formulas: Monte Carlo
 // transmission through rough dielectric surfaces with multiple scattering and total internal
 // reflection. Two methods, both producing a BtdfTable:
 //

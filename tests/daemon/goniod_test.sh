@@ -9,6 +9,7 @@
 #   - restarted, goniod finds the interrupted run and resumes it: every point measured once; the
 #     job queued behind it was stored and runs after it;
 #   - gonioctl's exit codes: 2 for a refused request (no token, bad plan), 1 when no daemon;
+#   - gonioctl submit --dry-run prices a plan and queues nothing;
 #   - gonioctl plot draws the finished run (gonio-fit's curves, a PNG), from the build tree and
 #     from an install prefix (cmake --install), each with its own gonio-fit and plot script;
 #   - the token file is created readable by owner and group only.
@@ -81,6 +82,19 @@ set -e
 [[ $rc -eq 2 ]] || fail "a bad plan exited $rc"
 grep -q "bad.toml:[0-9]*:" "$work/bad.out" || fail "no file:line in: $(cat "$work/bad.out")"
 [[ $rc_down -eq 1 ]] || fail "an unreachable daemon exited $rc_down"
+# A plan's dry run prices it and queues nothing; a bad plan's names its file and line.
+ctl submit "$work/plan.toml" --repeat 2 --dry-run > "$work/dry.out" ||
+  fail "submit --dry-run: $(cat "$work/dry.out")"
+grep -q "plan $work/plan.toml (dry run; nothing queued)" "$work/dry.out" &&
+  grep -q ": 2 x .*: 10 points, about .* each" "$work/dry.out" ||
+  fail "submit --dry-run printed: $(cat "$work/dry.out")"
+[[ $(ctl --json queue | /usr/bin/python3 -c 'import json,sys; print(len(json.load(sys.stdin)["jobs"]))') == 0 ]] ||
+  fail "submit --dry-run queued a job"
+set +e
+ctl submit "$work/bad.toml" --dry-run > "$work/bad_dry.out" 2>&1; rc=$?
+set -e
+[[ $rc -eq 2 ]] && grep -q "bad.toml:[0-9]*:" "$work/bad_dry.out" ||
+  fail "a bad plan's dry run exited $rc: $(cat "$work/bad_dry.out")"
 
 # A run, stopped by SIGTERM after a few points, in the middle of its frames; a second job waits.
 ctl submit "$work/plan.toml" > /dev/null
@@ -136,9 +150,13 @@ ctl fit 1 --model beckmann > /dev/null || fail "fit 1"
 ctl plot 1 --model beckmann --out "$work/plot_b" > "$work/plot_b.out" 2>&1 ||
   fail "plot --model beckmann: $(cat "$work/plot_b.out")"
 ctl --json fits 1 > "$work/fits.json" || fail "fits 1"
-# The stored fits say what the geometry took: its share of sigma, the nuisance parameters counted.
-ctl fits 1 > "$work/fits.txt" || fail "fits 1 (text)"
-grep -q "geometry: .* of the sigma; chi2/dof counts .* nuisance parameter(s)" "$work/fits.txt" ||
+# The stored fits say what the geometry took (with -v, wrapped): its share of sigma, the nuisance
+# parameters counted; without -v a line a fit.
+ctl fits 1 > "$work/fits_brief.txt" || fail "fits 1 (text)"
+grep -q "geometry" "$work/fits_brief.txt" && fail "fits 1 explains without -v: $(cat "$work/fits_brief.txt")"
+ctl -v fits 1 > "$work/fits.txt" || fail "fits 1 -v"
+tr -s ' \n' ' ' < "$work/fits.txt" |
+  grep -q "geometry: .* of the sigma; chi2/dof counts .* nuisance parameter(s)" ||
   fail "fits 1 does not show the geometry: $(cat "$work/fits.txt")"
 /usr/bin/python3 - "$work/fits.json" "$work/plot_b/fit_summary.json" <<'PY' || fail "the plot's fit is not the stored one"
 import json, sys

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 #include <string>
 
@@ -63,7 +64,9 @@ TEST(Robustness, FitterReturnsAnErrorOrAFiniteResultForHostileSamples) {
   spec.theta_v_step = 4;
   const auto good = MakeSyntheticSweep(spec);
   std::mt19937_64 rng(23);
-  const double specials[] = {0.0, -0.0, 1e-300, 1e300, -1e300, std::nan(""), INFINITY, -1.0};
+  const double specials[] = {
+      0.0, -0.0, 1e-300, 1e300, -1e300, std::nan(""), std::numeric_limits<double>::infinity(),
+      -1.0};
   int errors = 0, fits = 0;
   for (int k = 0; k < 400; ++k) {
     auto data = good;

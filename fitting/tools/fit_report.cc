@@ -52,10 +52,9 @@ void Detail(std::ostream& out, const std::string& text) {
 // The width's sigma and its parts, each in quadrature (Parameter).
 std::string SigmaSplit(const FitSummary& f) {
   const Parameter& w = f.width;
-  const double instrument =
-      std::sqrt(std::max(0.0, w.sigma * w.sigma - w.sigma_stat * w.sigma_stat -
-                                  w.sigma_geometry * w.sigma_geometry -
-                                  w.sigma_floor * w.sigma_floor));
+  const double instrument = std::sqrt(
+      std::max(0.0, w.sigma * w.sigma - w.sigma_stat * w.sigma_stat -
+                        w.sigma_geometry * w.sigma_geometry - w.sigma_floor * w.sigma_floor));
   std::ostringstream s;
   s << std::setprecision(3) << WidthName(f.model.family) << "'s sigma " << w.sigma
     << ": statistical " << w.sigma_stat << ", instrument " << instrument << ", geometry "
@@ -170,8 +169,9 @@ void PrintSamplesLine(std::ostream& out, const std::string& csv_path, std::size_
 void PrintProtocolResult(std::ostream& out, const ProtocolResult& result,
                          const ReportOptions& options) {
   if (result.protocol) {
-    PrintFits(out, "Fit at normal incidence (Walter 2007 section 6, Figure 12):",
-              result.normal_fits, SelectModel(result.normal_fits), options);
+    PrintFits(out,
+              "Fit at normal incidence (Walter 2007 section 6, Figure 12):", result.normal_fits,
+              SelectModel(result.normal_fits), options);
     PrintPredictions(out, result);
   }
   PrintFits(out, result.protocol ? "Joint fit of all incidences:" : "Fit:", result.joint_fits,

@@ -1063,29 +1063,9 @@ bool FillUncertainties(LocalFit& winner, const Problem& p, const FitOptions& o, 
   return cov_ok;
 }
 
-// A converged fit judged on its chi2: poor where P(chi2_dof >= chi2) < 1e-6. With honest sigmas a
-// correct model gives p ~ U(0, 1). The degrees of freedom count the nuisance parameters the data
-// fixed (FitSummary::n_nuisance).
-void JudgeChi2(FitSummary& out) {
-  if (out.status != FitStatus::kConverged && out.status != FitStatus::kPoorFit) return;
-  if (out.status == FitStatus::kPoorFit) {
-    out.status = FitStatus::kConverged;
-    out.message.clear();
-  }
-  const double dof = out.n_points - out.n_params - out.n_nuisance;
-  const double p_value = boost::math::gamma_q(0.5 * dof, 0.5 * out.chi2);
-  if (p_value < 1e-6) {
-    std::ostringstream poor;
-    poor << "the model does not describe the data: chi2/dof = " << out.reduced_chi2 << " over "
-         << dof << " degrees of freedom (p = " << p_value
-         << "); the width is not a measurement of the surface";
-    out.message = poor.str();
-    out.status = FitStatus::kPoorFit;
-  }
-}
-
-// The fit's status and message: unconstrained, converged, or a poor fit by its chi2.
-void Judge(bool cov_ok, FitSummary& out) {
+// Why the data do not constrain the width, or "" where they do: a singular covariance, fewer than
+// 3 samples inside the fitted lobe's half maximum, or a relative sigma above 50 %.
+std::string ConstraintProblem(bool cov_ok, const FitSummary& out) {
   std::ostringstream why;
   if (!cov_ok)
     why << "the covariance is singular: the data do not constrain every parameter";
@@ -1096,9 +1076,35 @@ void Judge(bool cov_ok, FitSummary& out) {
   else if (out.width.sigma > 0.5 * out.width.value)
     why << "the width's relative uncertainty is " << 100 * out.width.sigma / out.width.value
         << " %: the data barely constrain it";
-  out.message = why.str();
-  out.status = out.message.empty() ? FitStatus::kConverged : FitStatus::kUnconstrained;
-  JudgeChi2(out);
+  return why.str();
+}
+
+// A fit judged on what the data constrain and on its chi2. A chi2 whose p-value is below 1e-6
+// makes it a poor fit whatever else holds: the family does not describe the data, which is the
+// first thing to say of it (a width's sigma inflated by a chi2/dof of 1e6 looks unconstrained
+// only because of it). With honest sigmas a correct model gives p ~ U(0, 1). The degrees of
+// freedom count the nuisance parameters the data fixed (FitSummary::n_nuisance). Judged again
+// when those change. For a converged solve only.
+void JudgeFit(bool cov_ok, FitSummary& out) {
+  const std::string constraint = ConstraintProblem(cov_ok, out);
+  out.message = constraint;
+  out.status = constraint.empty() ? FitStatus::kConverged : FitStatus::kUnconstrained;
+  const double dof = out.n_points - out.n_params - out.n_nuisance;
+  const double p_value = boost::math::gamma_q(0.5 * dof, 0.5 * out.chi2);
+  if (p_value < 1e-6) {
+    std::ostringstream poor;
+    poor << std::setprecision(3) << "the model does not describe the data (chi2/dof "
+         << out.reduced_chi2 << " over " << dof << " degrees of freedom, p = " << p_value
+         << "): the width is not a measurement of the surface";
+    out.message = poor.str();
+    out.status = FitStatus::kPoorFit;
+  }
+}
+
+// Whether the data constrain the width of a judged fit (its covariance was regular if it has a
+// sigma).
+bool WidthConstrained(const FitSummary& f) {
+  return f.status != FitStatus::kFailed && ConstraintProblem(f.width.sigma > 0, f).empty();
 }
 
 }  // namespace
@@ -1425,7 +1431,7 @@ Result<FitSummary> FitOnce(std::span<const Sample> input, const SolveOptions& o)
     out.dark.largest_z = std::max(out.dark.largest_z, std::abs(best.dark_z[d]));
   FillStatistics(p, o, *winner, out);
   const bool cov_ok = FillUncertainties(*winner, p, o, out);
-  Judge(cov_ok, out);
+  JudgeFit(cov_ok, out);
   out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   {
     std::ostringstream t;
@@ -1877,7 +1883,7 @@ void CountNuisance(const GeometryUse& g, const BenchOptics& b, const FitOptions&
     const double r = std::sqrt(std::max(1.0, fit.reduced_chi2) / std::max(1.0, before));
     for (Parameter* q : {&fit.width, &fit.scale, &fit.eta, &fit.floor}) q->sigma *= r;
   }
-  JudgeChi2(fit);
+  if (fit.status != FitStatus::kFailed) JudgeFit(fit.width.sigma > 0, fit);
 }
 
 // GeometryUse (fitter.h): the geometry's stated uncertainties into the fit.
@@ -1965,8 +1971,7 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   // it went in). One that does not converge leaves its part out of sigma, and the note says so;
   // the fit itself stands.
   std::optional<FitSummary> base;
-  if (fit.status == FitStatus::kUnconstrained &&
-      (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0)) {
+  if (!WidthConstrained(fit) && (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0)) {
     // Refits with the response each (most of such a fit's time) for a width the data do not
     // constrain: not worth it. A poor fit keeps them: a geometry that is off is one reason a
     // fit is poor.
@@ -2129,7 +2134,7 @@ ModelChoice SelectModel(std::span<const FitSummary> fits, double decisive_delta_
   if (smallest.size() == 1) {
     c.chosen = smallest[0];
     os << Describe(fits[smallest[0]].model) << ": every other model is " << decisive_delta_bic
-       << " or more worse in BIC, or has more parameters than the data support";
+       << " or more worse in BIC or has more parameters";
     if (fits[smallest[0]].status == FitStatus::kPoorFit)
       os << "; but even it does not describe the data (" << fits[smallest[0]].message << ")";
   } else {

@@ -23,10 +23,11 @@
 //     parameters by the delta method and, by default, inflated by the reduced chi-square when it
 //     exceeds 1 (the data scatter more than their sigmas say); with a robust loss, by the squared
 //     robust scatter (1.4826 x median |residual|) instead, since the outliers dominate chi-square.
-//   * A fit the data cannot support is reported, not hidden: FitStatus::kUnconstrained when fewer
-//     than 3 samples lie inside the fitted lobe's half maximum, the width's relative uncertainty
-//     exceeds 50 %, or the covariance is singular; FitStatus::kPoorFit when the model does not
-//     describe the data (chi-square p-value < 1e-6): its width is then not a measurement.
+//   * A fit the data cannot support is reported, not hidden: FitStatus::kPoorFit when the model
+//     does not describe the data (chi-square p-value < 1e-6), whatever else holds: its width is
+//     then not a measurement; else FitStatus::kUnconstrained when fewer than 3 samples lie inside
+//     the fitted lobe's half maximum, the width's relative uncertainty exceeds 50 %, or the
+//     covariance is singular. One word for "this family is wrong", however its sigma came out.
 #pragma once
 
 #include <functional>
@@ -112,7 +113,8 @@ enum class FitStatus {
   kConverged,      // the solver converged and the data constrain the width
   kUnconstrained,  // converged, but the data do not determine the width (see message)
   kPoorFit,        // converged, but the model does not describe the data: chi-square's p-value
-                   // is below 1e-6 (e.g. multiple scattering on very rough glass, wrong family)
+                   // is below 1e-6 (e.g. multiple scattering on very rough glass, wrong family),
+                   // whether or not the width is constrained
   kFailed,         // no start converged
 };
 const char* ToString(FitStatus s);

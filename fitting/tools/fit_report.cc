@@ -121,10 +121,12 @@ void PrintFits(std::ostream& out, const std::string& title, const std::vector<Fi
         << ToString(f.status) << "\n";
     // A warning (why the fit is not a measurement) is shown whatever the options.
     if (!f.message.empty()) Detail(out, f.message);
-    const bool measured = f.status == FitStatus::kConverged || f.status == FitStatus::kPoorFit;
+    // A width's parts and the floor where the width is a measurement (the rest under --explain).
+    const bool measured = f.status == FitStatus::kConverged;
     if (measured && (f.width.sigma_stat > 0 || f.width.sigma_geometry > 0))
       Detail(out, SigmaSplit(f));
-    if (f.floor_fitted) Detail(out, "floor " + PlusMinus(f.floor, 4) + " (value units)");
+    if (f.floor_fitted && (measured || options.explain))
+      Detail(out, "floor " + PlusMinus(f.floor, 4) + " (value units)");
     if (options.explain) PrintExplanation(out, f);
   }
   out << Wrap("model choice: " + choice.reason, kReportColumns, "", "  ");
@@ -148,13 +150,13 @@ void PrintPredictions(std::ostream& out, const ProtocolResult& r) {
 
 }  // namespace
 
-void PrintSamplesLine(std::ostream& out, const std::string& csv_path, std::size_t samples,
-                      const ProtocolResult& result, double eta, bool eta_fitted) {
+void PrintSamplesLine(std::ostream& out, std::size_t samples, const ProtocolResult& result,
+                      double eta, bool eta_fitted) {
   std::ostringstream s;
-  s << "gonio-fit: " << samples << " samples from " << csv_path << ", " << result.groups.size()
-    << " incidence(s):";
+  s << "gonio-fit: " << samples << " samples, " << result.groups.size()
+    << (result.groups.size() == 1 ? " incidence:" : " incidences:");
   for (const auto& g : result.groups) s << " " << g.theta_l_deg << " (" << g.samples.size() << ")";
-  s << "; eta " << (eta_fitted ? "fitted from " : "") << eta;
+  s << "; eta " << (eta_fitted ? "fitted from " : "") << eta << (eta_fitted ? "" : " (fixed)");
   for (const auto& f : result.joint_fits)
     if (f.model.family == Family::kBeckmann && f.model.g1 == optics::SmithG1::kRational) {
       s << "; beckmann-r: Beckmann with Walter's rational G1 (eq. 27)";

@@ -21,8 +21,8 @@ struct ReportOptions {
 };
 
 // The header line: samples, incidences and what was held fixed.
-void PrintSamplesLine(std::ostream& out, const std::string& csv_path, std::size_t samples,
-                      const ProtocolResult& result, double eta, bool eta_fitted);
+void PrintSamplesLine(std::ostream& out, std::size_t samples, const ProtocolResult& result,
+                      double eta, bool eta_fitted);
 
 // The fits of `result` under their titles: the normal-incidence fits and their predictions of
 // the other incidences (under Walter's protocol), then the joint fit and the model choice.

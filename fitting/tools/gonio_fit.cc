@@ -234,7 +234,7 @@ int main(int argc, char** argv) {
     std::cerr << "gonio-fit: error: " << run.error().message << "\n";
     return 1;
   }
-  PrintSamplesLine(std::cout, c.csv_path, samples->size(), *run, c.base.eta, c.base.fit_eta);
+  PrintSamplesLine(std::cout, samples->size(), *run, c.base.eta, c.base.fit_eta);
   PrintProtocolResult(std::cout, *run, ReportOptions{.explain = c.explain});
   if (!c.out_dir.empty()) {
     if (Status w = WriteOutputs(c.out_dir, c.csv_path, *samples, *run); !w.ok()) {
@@ -242,9 +242,8 @@ int main(int argc, char** argv) {
       return 2;
     }
     std::cout << "\n"
-              << Wrap("wrote " + c.out_dir +
-                          "/{fit_curves.csv, empirical_d.csv, fitted_d.csv, fit_summary.json" +
-                          (run->protocol ? ", fit_curves_joint.csv" : "") + "}",
+              << Wrap("wrote the curves, the empirical D and fit_summary.json to " + c.out_dir +
+                          " (docs/fitting.md)",
                       kReportColumns, "", "  ");
   }
   return run->AnyFitted() ? 0 : 1;

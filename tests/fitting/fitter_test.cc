@@ -296,6 +296,25 @@ TEST(Protocol, WrongFamilyFailsToExtrapolate) {
   EXPECT_GT(pe[1].reduced_chi2, 5.0);
 }
 
+// A family that misses the data by a chi2/dof of thousands is a poor fit, even where the misfit
+// inflates the width's sigma past what would call it unconstrained: one word for "the family is
+// wrong" (on the demo, GGX on ground glass was "unconstrained" under Huber and "poor fit" without).
+// The two verdicts meet: a lobe sampled too coarsely to constrain its width (unconstrained, as
+// above) and a family that does not describe the data. The wrong family is what to say: it does
+// not go away with more samples, and the operator needs one word for it.
+TEST(Fit, AWrongFamilyIsAPoorFitEvenWhereTheWidthIsUnconstrained) {
+  SyntheticSweep s = Sweep(Family::kBeckmann, kFigure12[3], 9);
+  s.fine_step = 0;         // about one sample inside the lobe
+  s.peak_electrons = 2e8;  // precise enough to tell the families apart
+  FitOptions o;
+  o.model.family = Family::kGgx;
+  const FitSummary f = MustFit(MakeSyntheticSweep(s), o);
+  EXPECT_LT(f.points_in_lobe, 3);  // the edge this is about
+  EXPECT_GT(f.reduced_chi2, 100.0) << f.reduced_chi2;
+  EXPECT_EQ(f.status, FitStatus::kPoorFit) << f.message;
+  EXPECT_NE(f.message.find("does not describe the data"), std::string::npos) << f.message;
+}
+
 // ---- Model selection ---------------------------------------------------------------------------
 
 std::vector<FitSummary> FitFamilies(const std::vector<Sample>& data) {

@@ -42,6 +42,18 @@ double LobeForecast::Rate(const PlannedPoint& p) const {
   return std::max(0.0, bench.adu_per_value * (bench.scale * f + bench.floor));
 }
 
+Throughput ThroughputOf(const config::ThroughputConfig& c) {
+  Throughput t;
+  t.run = 0;
+  t.scale = c.scale;
+  t.floor = c.floor;
+  t.adu_per_value = c.adu_per_value;
+  t.dark_adu = c.dark_adu;
+  if (c.noise_shot > 0 || c.noise_read > 0 || c.noise_lamp > 0 || c.noise_dark > 0)
+    t.noise = FrameNoise{c.noise_shot, c.noise_read, c.noise_lamp, c.noise_dark};
+  return t;
+}
+
 std::optional<LobeForecast> ForecastFor(const Specimen& specimen,
                                         const std::optional<Throughput>& bench,
                                         double linear_limit_adu, int max_ranging_tries) {
@@ -55,11 +67,27 @@ std::string DescribeEstimateBasis(const ExposureHistory* history, const LobeFore
   if (forecast != nullptr) {
     char alpha[32];
     std::snprintf(alpha, sizeof alpha, "%.3g", forecast->alpha);
-    return std::string("the expected lobe (Beckmann alpha ") + alpha + ") at run " +
-           std::to_string(forecast->bench.run) + "'s throughput";
+    const std::string at = forecast->bench.run > 0
+                               ? "run " + std::to_string(forecast->bench.run) + "'s throughput"
+                               : "the configured throughput";
+    return std::string("the expected lobe (Beckmann alpha ") + alpha + ") at " + at;
   }
   return "the plan's initial exposure";
 }
+
+namespace {
+
+// Why a plan's exposures cannot be priced: what is missing, and what would supply it.
+std::string NotPricedBecause(const Plan& plan, const std::optional<Throughput>& bench) {
+  if (!bench)
+    return "exposures not priced: this database has no finished run with a fit to measure the "
+           "bench's throughput on, and the instrument config has no [throughput] "
+           "(docs/operator.md); motion only";
+  return "exposures not priced: no earlier run of specimen '" + plan.specimen.name +
+         "', and the catalogue gives it no expected_alpha to forecast its lobe from; motion only";
+}
+
+}  // namespace
 
 RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points,
                        const std::vector<devices::AxisSettings>& axes, const ExposureHistory* seen,
@@ -89,6 +117,14 @@ RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points
   e.total_s = EstimateSeconds(priced, points, axes, priced.exposure.initial_s, seen, f, &parts);
   e.exposure_s = parts.exposure_s;
   e.basis = DescribeEstimateBasis(seen, f);
+  if (seen == nullptr && f == nullptr && !adaptive) {
+    // The plan's first exposure is where ranging starts, not what the points take.
+    e.priced = false;
+    e.total_s = parts.motion_s;
+    e.exposure_s = 0;
+    e.basis = NotPricedBecause(plan, bench);
+    return e;
+  }
   if (adaptive && plan.strategy.budget_s > e.total_s) {
     char text[96];
     std::snprintf(text, sizeof text, "; adaptive: a %.0f s coarse scan, then at most its budget",

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "acquisition/plan.h"
+#include "config/instrument_config.h"
 
 namespace gonio::acquisition {
 
@@ -59,6 +60,10 @@ struct Throughput {
   std::optional<FrameNoise> noise;  // the run's points' sigmas, where they calibrate one
 };
 
+// The bench's throughput as the instrument's config states it ([throughput]): run 0, which
+// DescribeEstimateBasis names as the config.
+Throughput ThroughputOf(const config::ThroughputConfig& c);
+
 // A specimen's expected lobe at the bench's throughput.
 struct LobeForecast {
   Throughput bench;
@@ -78,20 +83,25 @@ std::optional<LobeForecast> ForecastFor(const Specimen& specimen,
                                         const std::optional<Throughput>& bench,
                                         double linear_limit_adu, int max_ranging_tries);
 
-// What an estimate was priced at, for the operator: "run N's exposures", "the expected lobe
-// (Beckmann alpha A) at run M's throughput" or "the plan's initial exposure".
+// What an estimate was priced at, for the operator: "run N's exposures" or "the expected lobe
+// (Beckmann alpha A) at run M's throughput" (or "at the configured throughput").
 std::string DescribeEstimateBasis(const ExposureHistory* history, const LobeForecast* forecast);
 
 // What a run was expected to cost when it was created (EstimateSeconds), in bench seconds.
 struct RunEstimate {
-  double total_s = 0;     // motion and exposure
+  double total_s = 0;     // motion and exposure (motion only when not `priced`)
   double exposure_s = 0;  // of which exposure: frames, ranging tries, darks
-  std::string basis;      // DescribeEstimateBasis
+  std::string basis;      // DescribeEstimateBasis, or why the exposures could not be priced
+  // False when nothing says what the exposures will be (no earlier run of the specimen, no
+  // throughput or no expected width): the plan's first exposure is no estimate (a run ranges
+  // its points up from it, 90 times longer on the demo), so none is given.
+  bool priced = true;
 };
 
 // The estimate of a new run of `plan` on what is known, in this order: `seen`, the specimen's
 // newest finished run's exposures (null: none); else its expected lobe at `bench`, the bench's
-// throughput (ForecastFor); else the plan's initial exposure. linear_limit_adu and
+// throughput (ForecastFor); else the exposures are not priced (`priced` false, the motion only,
+// the basis says what is missing). linear_limit_adu and
 // max_ranging_tries are the engine's (EngineOptions). An adaptive plan, when `bench` has a noise
 // calibration and the specimen an expected width: its runs simulated to the target or the budget
 // (point_bench.h, ForecastAdaptive), the median as the estimate and the 10-90 % range in the

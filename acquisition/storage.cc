@@ -733,7 +733,8 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
 Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
                                 const std::vector<PlannedPoint>& points,
                                 const std::vector<devices::AxisSettings>& axes,
-                                double linear_limit_adu, int max_ranging_tries) {
+                                double linear_limit_adu, int max_ranging_tries,
+                                const std::optional<Throughput>& configured) {
   auto history = db.LatestExposures(plan.specimen.name);
   if (!history.ok()) return history.error();
   const ExposureHistory* seen = *history ? &**history : nullptr;
@@ -742,7 +743,7 @@ Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
   if (seen == nullptr || plan.strategy.kind == "adaptive") {
     auto throughput = db.LatestThroughput();
     if (!throughput.ok()) return throughput.error();
-    bench = *throughput;
+    bench = *throughput ? *throughput : configured;
   }
   return EstimateOn(plan, points, axes, seen, bench, linear_limit_adu, max_ranging_tries);
 }

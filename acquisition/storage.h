@@ -210,11 +210,13 @@ class Storage {
 };
 
 // The estimate of a new run of `plan` (EstimateOn) on what `db` holds: the newest finished run of
-// its specimen, else its expected lobe at the bench's throughput, else its initial exposure.
+// its specimen, else its expected lobe at the bench's throughput (the newest run with a fit's,
+// else `configured`, the instrument config's), else not priced.
 Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
                                 const std::vector<PlannedPoint>& points,
                                 const std::vector<devices::AxisSettings>& axes,
-                                double linear_limit_adu, int max_ranging_tries);
+                                double linear_limit_adu, int max_ranging_tries,
+                                const std::optional<Throughput>& configured = std::nullopt);
 
 // "exposure 2136 s, estimated 2139 s (+0 %) from <basis>", or what of it is known ("" when
 // neither is): for run summaries and events.

@@ -2,11 +2,18 @@
 
 #include <arpa/inet.h>
 #include <arv.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <thread>
 
 namespace gonio::backends {
@@ -56,7 +63,76 @@ double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// GigE Vision 2.0 section 15 (GVCP): READREG_CMD (0x0080) of one register, answered by
+// READREG_ACK (0x0081) with the same request id. The socket is connected, so that a camera whose
+// host no longer listens on the GVCP port answers with ICMP port unreachable (ECONNREFUSED) at
+// once; a silent one is given `tries` waits of `wait_ms`. Reads need no control privilege.
+Status GvcpReadRegister(const std::string& ip, std::uint32_t address, int tries, int wait_ms) {
+  constexpr std::uint16_t kGvcpPort = 3956, kReadReg = 0x0080, kReadRegAck = 0x0081;
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(kGvcpPort);
+  if (::inet_pton(AF_INET, ip.c_str(), &to.sin_addr) != 1)
+    return Error{ErrorCode::kInvalidArgument, "'" + ip + "' is not a numeric IPv4 address"};
+  const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return Error{ErrorCode::kIo, std::string("GVCP socket: ") + std::strerror(errno)};
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&to), sizeof to) != 0)
+    return Error{ErrorCode::kNotConnected, std::string("GVCP: ") + std::strerror(errno)};
+  static std::atomic<std::uint16_t> next_id{1};
+  for (int attempt = 0; attempt < tries; ++attempt) {
+    std::uint16_t id = next_id++;
+    if (id == 0) id = next_id++;  // 0 is not a request id
+    const std::uint8_t cmd[12] = {0x42,
+                                  0x01,  // an acknowledge is asked for
+                                  kReadReg >> 8,
+                                  kReadReg & 0xff,
+                                  0x00,
+                                  0x04,  // payload: one address
+                                  static_cast<std::uint8_t>(id >> 8),
+                                  static_cast<std::uint8_t>(id & 0xff),
+                                  static_cast<std::uint8_t>(address >> 24),
+                                  static_cast<std::uint8_t>(address >> 16),
+                                  static_cast<std::uint8_t>(address >> 8),
+                                  static_cast<std::uint8_t>(address)};
+    if (::send(fd, cmd, sizeof cmd, 0) < 0)
+      return Error{ErrorCode::kNotConnected, std::string("GVCP: ") + std::strerror(errno)};
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(wait_ms);
+    while (true) {
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+                            deadline - std::chrono::steady_clock::now())
+                            .count();
+      if (left <= 0) break;
+      pollfd p{fd, POLLIN, 0};
+      if (::poll(&p, 1, static_cast<int>(left)) <= 0) break;
+      std::uint8_t ack[64];
+      const ssize_t n = ::recv(fd, ack, sizeof ack, 0);
+      if (n < 0)  // ECONNREFUSED: nothing listens on the camera's GVCP port
+        return Error{ErrorCode::kNotConnected, std::string("GVCP: ") + std::strerror(errno)};
+      if (n >= 12 && ((ack[2] << 8) | ack[3]) == kReadRegAck && ((ack[6] << 8) | ack[7]) == id) {
+        const int status = (ack[0] << 8) | ack[1];
+        if (status != 0)
+          return Error{ErrorCode::kDeviceFault,
+                       "GVCP READREG answered status " + std::to_string(status)};
+        return OkStatus();
+      }
+    }
+  }
+  return Error{ErrorCode::kTimeout, "no GVCP answer in " + std::to_string(tries) + " x " +
+                                        std::to_string(wait_ms) + " ms"};
+}
+
 }  // namespace
+
+Status AravisCamera::CheckLink() {
+  if (s_.address.rfind("usb3:", 0) == 0) return OkStatus();
+  if (Status s = GvcpReadRegister(s_.address, 0x0000, 2, 250); !s.ok())
+    return Error{s.error().code, "camera " + s_.address + ": " + s.error().message};
+  return OkStatus();
+}
 
 Result<std::unique_ptr<AravisCamera>> AravisCamera::Open(CameraSettings settings) {
   const std::string& a = settings.address;

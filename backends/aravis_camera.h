@@ -61,6 +61,9 @@ class AravisCamera final : public Camera {
   bool ChecksFrameStamps() const { return stamps_; }
   int StaleFrames() const override { return stale_frames_; }
   int Reconnections() const override { return reopens_; }
+  // GigE Vision: one READREG of the bootstrap Version register on a socket of its own (no
+  // state shared with the acquisition thread). USB3 Vision: not checked (OK).
+  Status CheckLink() override;
   std::string LastReconnectionCause() const override;
 
  private:

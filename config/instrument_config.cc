@@ -234,6 +234,33 @@ Status ReadBench(Reader& r, const toml::table& t, fitting::BenchOptics& b) {
   return OkStatus();
 }
 
+// [throughput]: scale and adu_per_value are needed (without them nothing is priced); the noise
+// is all four terms or none.
+Status ReadThroughput(Reader& r, const toml::table& t, ThroughputConfig& c) {
+  GONIO_TRY(r.Keys(t, "throughput",
+                   {"scale", "floor", "adu_per_value", "dark_adu", "noise_shot", "noise_read",
+                    "noise_lamp", "noise_dark", "from_run"}));
+  for (const char* key : {"scale", "adu_per_value"})
+    if (t.get(key) == nullptr) return r.Fail(&t, std::string("[throughput] needs '") + key + "'");
+  GONIO_TRY(r.Number(t, "scale", &c.scale, 1e-12, 1e15));
+  GONIO_TRY(r.Number(t, "floor", &c.floor, 0, 1e15));
+  GONIO_TRY(r.Number(t, "adu_per_value", &c.adu_per_value, 1e-12, 1e15));
+  GONIO_TRY(r.Number(t, "dark_adu", &c.dark_adu, 0, 1e9));
+  GONIO_TRY(r.Number(t, "noise_shot", &c.noise_shot, 0, 1e15));
+  GONIO_TRY(r.Number(t, "noise_read", &c.noise_read, 0, 1e15));
+  GONIO_TRY(r.Number(t, "noise_lamp", &c.noise_lamp, 0, 1));
+  GONIO_TRY(r.Number(t, "noise_dark", &c.noise_dark, 0, 1e15));
+  GONIO_TRY(r.Integer(t, "from_run", &c.from_run, 0, 1000000000));
+  int noise_terms = 0;
+  for (const char* key : {"noise_shot", "noise_read", "noise_lamp", "noise_dark"})
+    noise_terms += t.get(key) != nullptr ? 1 : 0;
+  if (noise_terms != 0 && noise_terms != 4)
+    return r.Fail(&t,
+                  "[throughput] gives the noise as all four of noise_shot, noise_read, "
+                  "noise_lamp, noise_dark or none of them");
+  return OkStatus();
+}
+
 }  // namespace
 
 Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
@@ -242,7 +269,8 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   const toml::table& root = *parsed;
   Reader r(path);
   InstrumentConfig c;
-  GONIO_TRY(r.Keys(root, "top level", {"camera", "stages", "monitor", "beam_block", "bench"}));
+  GONIO_TRY(r.Keys(root, "top level",
+                   {"camera", "stages", "monitor", "beam_block", "bench", "throughput"}));
   if (const toml::table* t = root["camera"].as_table()) GONIO_TRY(ReadCamera(r, *t, c));
   if (const toml::table* t = root["stages"].as_table()) GONIO_TRY(ReadStages(r, *t, c));
   if (c.axes.empty()) return r.Fail(nullptr, "no [[stages.axis]]: the instrument needs its axes");
@@ -261,6 +289,12 @@ Result<InstrumentConfig> LoadInstrumentConfig(const std::string& path) {
   if (const toml::table* t = root["bench"].as_table()) {
     c.bench.emplace();
     GONIO_TRY(ReadBench(r, *t, *c.bench));
+  }
+  if (const toml::table* t = root["throughput"].as_table()) {
+    c.throughput.emplace();
+    GONIO_TRY(ReadThroughput(r, *t, *c.throughput));
+  } else if (root.get("throughput") != nullptr) {
+    return r.Fail(root.get("throughput"), "[throughput] must be a table");
   }
   return c;
 }

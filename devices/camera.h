@@ -159,6 +159,11 @@ class Camera {
   // grows says the host or the link was slow enough to leave a frame behind; the frames kept are
   // still their triggers'. 0 for a camera that cannot tell.
   virtual int StaleFrames() const { return 0; }
+  // Whether the camera answers on its control channel (GigE Vision: a register read over GVCP),
+  // within about half a second; safe beside an exposure on another thread (the daemon's link
+  // watch). Not a frame: a camera whose frames stopped but that answers is the frame timeout's.
+  // OK for a camera that cannot tell.
+  virtual Status CheckLink() { return OkStatus(); }
 
   // Once *flag reads true, a Snap, Expose or Retrieve in progress (or begun) ends within about
   // 0.1 s with kAborted: the exposure is stopped (AcquisitionStop) and the camera left ready for

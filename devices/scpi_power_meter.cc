@@ -7,6 +7,7 @@
 namespace gonio::devices {
 
 Result<std::string> ScpiPowerMeter::QueryWithReopen(const std::string& q) {
+  std::lock_guard lock(mu_);
   auto r = tmc_.Query(q);
   if (r.ok() || r.error().code != ErrorCode::kNotConnected) return r;
   // The meter left the bus (a cable, a hub reset): reopen once and retry the query.
@@ -17,12 +18,18 @@ Result<std::string> ScpiPowerMeter::QueryWithReopen(const std::string& q) {
 }
 
 Status ScpiPowerMeter::Clear() {
+  std::lock_guard lock(mu_);
   if (Status s = tmc_.Clear(); !s.ok())
     return Error{s.error().code, "source monitor: clearing it failed: " + s.error().message};
   return tmc_.Write("*CLS");
 }
 
 Result<std::string> ScpiPowerMeter::Identity() { return QueryWithReopen("*IDN?"); }
+
+Status ScpiPowerMeter::CheckLink() {
+  auto r = Identity();
+  return r.ok() ? OkStatus() : Status(r.error());
+}
 
 Result<std::string> ScpiPowerMeter::NextError() { return QueryWithReopen("SYST:ERR?"); }
 
@@ -39,6 +46,7 @@ Result<double> ScpiPowerMeter::PowerW() {
 }
 
 Status ScpiPowerMeter::SetAndCheck(const std::string& command) {
+  std::lock_guard lock(mu_);  // the write and its error query together
   if (Status s = tmc_.Write(command); !s.ok()) return s;
   auto e = NextError();
   if (!e.ok()) return e.error();

@@ -1,10 +1,11 @@
 // A SCPI optical power meter over USBTMC (Thorlabs PM100 family command set, docs/reference.md
 // section 4): *IDN?, MEAS:POW?, SENS:CORR:WAV, SENS:AVER:COUN, SYST:ERR?. Settings are checked
 // against the meter's error queue. When the meter leaves the bus, one reopen is tried before an
-// error is returned.
+// error is returned. Each call is one exchange at a time (thread-safe).
 #pragma once
 
 #include <memory>
+#include <mutex>
 
 #include "devices/source_monitor.h"
 #include "devices/usbtmc.h"
@@ -26,6 +27,7 @@ class ScpiPowerMeter final : public SourceMonitor {
   Result<double> PowerW() override;
   Status SetWavelengthNm(double nm) override;
   Status SetAveraging(int count) override;
+  Status CheckLink() override;
   // The first entry of the error queue ("0,\"No error\"" when empty).
   Result<std::string> NextError();
 
@@ -33,6 +35,8 @@ class ScpiPowerMeter final : public SourceMonitor {
   Result<std::string> QueryWithReopen(const std::string& q);
   Status SetAndCheck(const std::string& command);
   UsbTmc tmc_;
+  // One exchange with the meter at a time: the daemon's link watch queries it beside a run.
+  std::recursive_mutex mu_;
 };
 
 }  // namespace gonio::devices

@@ -21,6 +21,9 @@ class SourceMonitor {
   // the meter's own SCPI error text.
   virtual Status SetWavelengthNm(double nm) = 0;
   virtual Status SetAveraging(int count) = 0;
+  // Whether the meter answers (SCPI *IDN?), safe beside a reading on another thread (the
+  // daemon's link watch). OK for a meter that cannot tell.
+  virtual Status CheckLink() { return OkStatus(); }
 };
 
 }  // namespace gonio::devices

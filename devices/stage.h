@@ -109,6 +109,13 @@ class StageController {
   // How many times the link has been connected again (a dropped connection, a controller that
   // restarted). A position read before a change of this count may no longer hold.
   virtual int Reconnections() const { return 0; }
+  // Whether the controller answers: one status read of the first axis, safe beside a move on
+  // another thread (the daemon's link watch runs beside the run). The error is the read's.
+  virtual Status CheckLink() {
+    if (axes().empty()) return OkStatus();
+    auto s = ReadStatus(axes().front().name);
+    return s.ok() ? OkStatus() : Status(s.error());
+  }
 };
 
 }  // namespace gonio::devices

@@ -78,12 +78,13 @@ ctl schedule config/schedule_demo.toml --dry-run
 start=$(date +%s)
 ctl schedule config/schedule_demo.toml --wait
 took=$(($(date +%s) - start))
-ctl runs
+# What run 1 exposed beside what the first dry run priced it at (on a new database: from the
+# instrument config's [throughput]).
+ctl show 1 | sed -n '1,/^theta_l/p' | sed '$d'
 echo "== the same schedule priced again, now from run 1's exposures =="
 ctl schedule config/schedule_demo.toml --dry-run
 echo "(run 1 took ${took} s of wall time at the simulator's x$speed clock:" \
   "about $((took * speed)) s of bench time, cooling included)"
-ctl fits 1
 ctl export 1 --out "$work/run1.csv"
 
 echo "== fitting (gonio-fit): normal incidence, then the other incidences predicted =="
@@ -96,6 +97,6 @@ alpha=$(sed -n 's/^alpha *= *\([0-9.]*\).*/\1/p' config/sim.toml | head -1)
 eta=$(sed -n 's/^eta *= *\([0-9.]*\).*/\1/p' config/sim.toml | head -1)
 echo "== the simulator's true sample: $model, alpha = $alpha, eta = $eta (config/sim.toml) =="
 
-echo "== plotting =="
 /usr/bin/python3 fitting/tools/plot_fit.py "$work/fit" "$work/fit.png"
-echo "demo: data in $work/runs.sqlite, samples in $work/run1.csv, fits in $work/fit/, plot $work/fit.png"
+echo "demo: data in $work/runs.sqlite (the schedule's fits: gonioctl fits 1), samples in" \
+  "$work/run1.csv, fits in $work/fit/, plot $work/fit.png"

@@ -2,12 +2,16 @@
 
 #include <httplib.h>
 #include <malloc.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <charconv>
+#include <chrono>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -262,31 +266,47 @@ Result<std::unique_ptr<ApiServer>> ApiServer::Start(Controller& controller, cons
   };
   // Bounds on what a request may cost: one request per connection (a body refused before it is
   // read - 401 - is dropped with the connection, never parsed as a next request), and bodies of
-  // at most max_body_bytes (413). The request line and each header are bounded by cpp-httplib
-  // (8 KiB, 414/400), but only after it has read them: docs/api.md says so.
+  // at most max_body_bytes (413). The request's head, its time and the connections are bounded
+  // in front of cpp-httplib, which cannot bound its line reader (request_guard.h): it serves a
+  // Unix socket in a directory only goniod's user may enter, and the guard the TCP port.
   s->server_->set_keep_alive_max_count(1);
   s->server_->set_payload_max_length(o.max_body_bytes);
   s->server_->set_read_timeout(5, 0);
+  s->server_->set_address_family(AF_UNIX);
   s->Routes();
-  if (o.port == 0) {
-    s->port_ = s->server_->bind_to_any_port(o.host);
-    if (s->port_ <= 0) return Error{ErrorCode::kIo, "cannot bind the API to " + o.host};
-  } else {
-    if (!s->server_->bind_to_port(o.host, o.port))
-      return Error{ErrorCode::kIo, "cannot bind the API to " + o.host + ":" +
-                                       std::to_string(o.port) + " (in use, or not an address)"};
-    s->port_ = o.port;
-  }
+  char dir[] = "/tmp/goniod-api-XXXXXX";  // mode 0700 (mkdtemp)
+  if (::mkdtemp(dir) == nullptr)
+    return Error{ErrorCode::kIo,
+                 std::string("the API's socket directory: ") + std::strerror(errno)};
+  s->socket_dir_ = dir;
+  const std::string socket_path = s->socket_dir_ + "/api.sock";
+  if (!s->server_->bind_to_port(socket_path, 80))
+    return Error{ErrorCode::kIo, "cannot serve the API on " + socket_path};
   ApiServer* raw = s.get();
   s->thread_ = std::thread([raw] { raw->server_->listen_after_bind(); });
+  // cpp-httplib's stop() before its loop runs is lost, and Stop() would wait for ever.
+  for (int k = 0; k < 400 && !s->server_->is_running(); ++k)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  GuardLimits limits = o.limits;
+  limits.max_body_bytes = o.max_body_bytes;
+  auto guard = RequestGuard::Start(o.host, o.port, socket_path, limits);
+  if (!guard.ok()) return guard.error();  // the destructor stops the server
+  s->guard_ = std::move(*guard);
+  s->port_ = s->guard_->port();
   return s;
 }
 
 ApiServer::~ApiServer() { Stop(); }
 
 void ApiServer::Stop() {
+  if (guard_) guard_->Stop();
   if (server_) server_->stop();
   if (thread_.joinable()) thread_.join();
+  if (!socket_dir_.empty()) {
+    std::error_code ec;
+    std::filesystem::remove_all(socket_dir_, ec);
+    socket_dir_.clear();
+  }
 }
 
 void ApiServer::Routes() {
@@ -442,6 +462,7 @@ void ApiServer::RouteSchedules() {
       return h.ok() ? *h : std::nullopt;
     };
     if (auto t = reader_->LatestThroughput(); t.ok()) basis.throughput = *t;
+    if (!basis.throughput) basis.throughput = c.configured_throughput();
     basis.linear_limit_adu = c.engine_options().linear_limit_adu;
     basis.max_ranging_tries = c.engine_options().max_ranging_tries;
     auto schedule =
@@ -456,6 +477,7 @@ void ApiServer::RouteSchedules() {
                   {"points", e.points},
                   {"skipped", e.skipped},
                   {"estimate_s", e.estimate_s},
+                  {"estimate_priced", e.estimate_priced},
                   {"estimate_basis", e.estimate_basis}};
         step["start_at_unix"] = e.start_at_unix ? json(*e.start_at_unix) : json(nullptr);
         step["cooler_setpoint_c"] = e.cooler ? json(e.cooler->setpoint_c) : json(nullptr);
@@ -499,6 +521,24 @@ void ApiServer::RouteRuns() {
     json list = json::array();
     for (const auto& r : *runs) list.push_back(RunJson(r));
     Reply(res, 200, {{"runs", list}});
+  });
+  // The bench's throughput and noise measured on the newest finished run with a fit: what the
+  // instrument config's [throughput] holds, so that a new database prices its first runs.
+  srv.Get("/api/v1/throughput", [this](const httplib::Request&, httplib::Response& res) {
+    auto t = reader_->LatestThroughput();
+    if (!t.ok()) return ReplyError(res, t.error());
+    if (!*t)
+      return ReplyError(res, 404,
+                        "no finished run with a fit in this database: the bench's throughput is "
+                        "measured on one (run a plan with a fit first)");
+    json j{{"run", (*t)->run},
+           {"scale", (*t)->scale},
+           {"floor", (*t)->floor},
+           {"adu_per_value", (*t)->adu_per_value},
+           {"dark_adu", (*t)->dark_adu}};
+    if (const auto& n = (*t)->noise)
+      j["noise"] = {{"shot", n->shot}, {"read", n->read}, {"lamp", n->lamp}, {"dark", n->dark}};
+    Reply(res, 200, j);
   });
   srv.Get(R"(/api/v1/runs/(\d+))", [this](const httplib::Request& req, httplib::Response& res) {
     const auto id = IdOf(req, res, "run");

@@ -8,9 +8,13 @@
 //   401 a mutating call without the right token
 //   404 unknown run, job or path
 //   409 not now (pause when idle, cancel a running job)
+//   408 a request's head or body slower than the guard's bounds
+//   411 a chunked body (no Content-Length)
 //   413 a body over max_body_bytes
+//   414 a request line over 8 KiB; 431 a head over 32 KiB or 100 headers (request_guard.h)
 //   500 a storage error, or an internal error (numbered; the text goes to the log only)
-//   503 max_stream_clients event streams are already open, or a snap's camera failed
+//   503 max_stream_clients event streams are already open, or a snap's camera failed, or the
+//       guard's connections are all taken
 #pragma once
 
 #include <atomic>
@@ -21,6 +25,7 @@
 
 #include "acquisition/storage.h"
 #include "common/result.h"
+#include "daemon/api/request_guard.h"
 #include "daemon/service/controller.h"
 #include "daemon/service/plan_catalogue.h"
 
@@ -38,6 +43,7 @@ struct ApiOptions {
   int max_stream_clients = 16;  // open event streams; more get 503
   std::size_t max_body_bytes = 4u << 20;  // a schedule with its plans fits many times over
   std::string plans_dir{};                // the instrument's plans (GET /api/v1/plans); empty: none
+  GuardLimits limits{};  // the request's head, its time, the connections (request_guard.h)
 };
 
 class ApiServer {
@@ -72,15 +78,17 @@ class ApiServer {
   std::optional<PlanCatalogue> plans_;  // the API's own connection (WAL: no blocking)
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
+  std::unique_ptr<RequestGuard> guard_;  // the TCP port, in front of server_
+  std::string socket_dir_;               // server_'s Unix socket's private directory
   int port_ = 0;
   std::atomic<int> streams_{0};  // open event streams
   static constexpr int kRequestThreads = 8;
 };
 
 // Makes glibc give every freed block of 1 MiB or more back to the system (a fixed mmap
-// threshold; glibc's own adapts up to 32 MiB and keeps what is below it for reuse). cpp-httplib
-// 0.11 reads a request line whole before it refuses it (414), so without this a few long lines
-// from any local client stay resident in goniod for good. Process-wide: call once at start.
+// threshold; glibc's own adapts up to 32 MiB and keeps what is below it for reuse): the bodies
+// of up to 4 MiB that authenticated requests carry, and the responses built for them, go back
+// once answered. Process-wide: call once at start.
 void ReturnLargeBlocksToTheSystem();
 
 // A token for a new token file: 32 hex digits from the system's random source.

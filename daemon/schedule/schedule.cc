@@ -89,6 +89,7 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
     }
     e.estimate_s = priced->second.total_s;
     e.estimate_basis = priced->second.basis;
+    e.estimate_priced = priced->second.priced;
     GONIO_TRY(r.Integer(*t, "repeat", &e.repeat, 1, 1000));
     if (const toml::node* s = t->get("start_at")) {
       std::string iso;

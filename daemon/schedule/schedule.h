@@ -49,8 +49,9 @@ struct ScheduleEntry {
   int line = 0;  // of its [[job]]
   // From the plan: what a dry run reports.
   int points = 0, skipped = 0;
-  double estimate_s = 0;       // motion and exposure of one run (bench seconds)
-  std::string estimate_basis;  // acquisition::DescribeEstimateBasis
+  double estimate_s = 0;        // motion and exposure of one run (bench seconds)
+  std::string estimate_basis;   // acquisition::DescribeEstimateBasis, or why not priced
+  bool estimate_priced = true;  // false: estimate_s is the motion only (RunEstimate::priced)
 };
 
 struct Schedule {
@@ -64,8 +65,8 @@ using ExposureLookup =
     std::function<std::optional<acquisition::ExposureHistory>(const std::string& specimen)>;
 
 // What prices a plan before it runs (acquisition::EstimateSeconds): an earlier run of its
-// specimen, else the specimen's expected lobe at the bench's throughput, else the plan's first
-// exposure.
+// specimen, else the specimen's expected lobe at the bench's throughput (the database's, else
+// the instrument config's), else not priced.
 struct EstimateBasis {
   ExposureLookup history;
   std::optional<acquisition::Throughput> throughput;  // Storage::LatestThroughput

@@ -524,7 +524,9 @@ void Controller::Worker() {
                    [&] { return shutdown_ || resume_requested_ || state_ != State::kSuspended; });
       if (shutdown_ || resume_requested_ || state_ != State::kSuspended) continue;
       lock.unlock();
-      const auto why = SuspendCondition();
+      // The links first: a run suspended by a device gone resumes only once every link answers.
+      auto why = o_.suspenders.link_check_s > 0 ? LinkLost() : std::nullopt;
+      if (!why) why = SuspendCondition();
       lock.lock();
       if (state_ != State::kSuspended || shutdown_) continue;
       if (!why) {
@@ -583,6 +585,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   // A pause or an abort asked for from here on (while the estimate is made) is honoured.
   stop_ = false;
   stop_reason_ = StopReason::kNone;
+  if (!shutdown_) interrupt_ = false;  // a link watch's interrupt ended the last attempt
   if (!job.run) {
     const auto points = acquisition::ExpandPoints(*plan, context_);
     auto run = db_.NewRun(*plan, o_.config_text, points,
@@ -601,9 +604,11 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     SetState(State::kRunning, "estimating the run's time");
     lock.unlock();
     auto e = acquisition::EstimateRun(db_, *plan, points, context_.axes, o_.engine.linear_limit_adu,
-                                      o_.engine.max_ranging_tries);
+                                      o_.engine.max_ranging_tries, o_.throughput);
     lock.lock();
-    if (e.ok()) (void)db_.SetRunEstimate(*run, *e);
+    // Not priced: no estimate is stored (nothing shows one), and the event says why.
+    if (e.ok() && e->priced) (void)db_.SetRunEstimate(*run, *e);
+    if (e.ok() && !e->priced) (void)db_.AddEvent(*run, "estimate", e->basis);
     if (!plan->rectangle_reason.empty())
       (void)db_.AddEvent(*run, "rectangle", plan->rectangle_reason);
     if (stop_reason_ == StopReason::kShutdown) return;  // the run stays planned
@@ -651,12 +656,24 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
         about.rectangle = rectangle;
         frames_.Put(image, o_.engine.linear_limit_adu, std::move(about));
       });
+  std::atomic<bool> engine_done{false};
+  std::thread watch;
+  if (o_.suspenders.link_check_s > 0) watch = std::thread([&] { WatchLinks(engine_done); });
   const gonio::Status s = engine.Run(run, *plan, stop_, [this](const Progress& p) { OnPoint(p); });
+  engine_done = true;
+  if (watch.joinable()) watch.join();
   if (!s.ok()) SafeState();
   lock.lock();
 
   if (!current_) return;  // cannot happen: only the worker finishes a running job
   const StopReason why = stop_reason_;
+  if (!s.ok() && why == StopReason::kSuspend && !fault_logged_.empty()) {
+    // The link watch suspended the run (and logged why) before the engine's own call failed.
+    current_->state = JobState::kPaused;
+    SaveJob(*current_);
+    SetState(State::kSuspended, fault_logged_);
+    return;
+  }
   if (!s.ok()) {
     // A device fault the drivers' retries did not clear: the engine left the run paused. The
     // worker retries each poll interval; only the outage's first failure (or a new one) is logged.
@@ -710,7 +727,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
     case StopReason::kSuspend:
       SaveJob(*current_);
       if (suspended_since_ == 0) suspended_since_ = NowS();
-      SetState(State::kSuspended, reason_);
+      SetState(State::kSuspended, fault_logged_.empty() ? reason_ : fault_logged_);
       break;
     case StopReason::kShutdown:
       (void)db_.AddEvent(run, "paused", "daemon shutdown");
@@ -779,6 +796,48 @@ void Controller::FitAfterRun(const Job& job) {
                             {"reduced_chi2", f.summary.reduced_chi2},
                             {"samples", f.samples}});
   }
+}
+
+std::optional<std::string> Controller::LinkLost() {
+  if (Status s = stages_.CheckLink(); !s.ok())
+    return "device fault: the stage controller does not answer: " + s.error().message;
+  if (Status s = camera_.CheckLink(); !s.ok())
+    return "device fault: the camera does not answer its control channel: " + s.error().message;
+  if (monitor_ != nullptr)
+    if (Status s = monitor_->CheckLink(); !s.ok())
+      return "device fault: the source monitor does not answer: " + s.error().message;
+  return std::nullopt;
+}
+
+void Controller::WatchLinks(const std::atomic<bool>& done) {
+  const auto period = std::chrono::duration<double>(o_.suspenders.link_check_s);
+  auto next = std::chrono::steady_clock::now() + period;
+  while (!done) {
+    // Slices of 20 ms: the engine's end is seen at once, not a period later.
+    if (std::chrono::steady_clock::now() < next) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      continue;
+    }
+    next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
+    if (auto lost = LinkLost(); lost && !done) {
+      OnLinkLost(*lost);
+      return;  // the run stops; the worker's suspended loop checks the links from here
+    }
+  }
+}
+
+void Controller::OnLinkLost(const std::string& why) {
+  std::lock_guard lock(mu_);
+  if (!current_ || stop_reason_ != StopReason::kNone) return;  // a stop is under way already
+  stop_reason_ = StopReason::kSuspend;
+  stop_ = true;
+  interrupt_ = true;  // the exposure in hand is abandoned (its point stays pending)
+  reason_ = why;
+  fault_logged_ = why;  // the first point measured after it logs the outage's end
+  suspended_since_ = NowS();
+  if (current_->run) (void)db_.AddEvent(*current_->run, "suspend", why);
+  events_.Publish("suspend", {{"run", current_->run ? *current_->run : 0}, {"reason", why}});
+  SetState(State::kSuspended, why);  // seen now, not once the engine has let go of the point
 }
 
 std::optional<std::string> Controller::SuspendCondition() {

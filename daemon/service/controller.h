@@ -70,7 +70,11 @@ struct Suspenders {
   double temperature_band_c = 2.0;
   // The source monitor's reading must stay above this (W); needs a monitor.
   std::optional<double> monitor_floor_w;
-  double poll_s = 2.0;             // how often a suspended condition is checked (real seconds)
+  double poll_s = 2.0;  // how often a suspended condition is checked (real seconds)
+  // How often the devices' links are checked while a run measures (CheckLink of the stages, the
+  // camera and the monitor, on a thread beside the engine): a device gone suspends the run
+  // within this and the check's own time, not at the engine's next use of it. 0: not checked.
+  double link_check_s = 0.5;
   double fault_give_up_s = 600.0;  // a device fault not cleared this long becomes State::kFault
 };
 
@@ -81,6 +85,9 @@ struct ControllerOptions {
   // What rebuilds a run's instrument responses (ResponseJsonFor), stored with each run; unset or
   // empty: none.
   std::function<std::string(const acquisition::Plan&)> response_for;
+  // The instrument config's [throughput]: prices a run when the database has no run of its own
+  // to price it on (acquisition::EstimateRun).
+  std::optional<acquisition::Throughput> throughput;
 };
 
 struct StatusReport {
@@ -119,6 +126,9 @@ class Controller {
   Result<std::vector<Job>> Submit(const Schedule& schedule);
   const acquisition::PlanContext& context() const { return context_; }
   const acquisition::EngineOptions& engine_options() const { return o_.engine; }
+  const std::optional<acquisition::Throughput>& configured_throughput() const {
+    return o_.throughput;
+  }
   std::vector<Job> Jobs() const;  // current first, then the queue in order, then finished ones
   Result<Job> GetJob(std::int64_t id) const;  // kNotFound
   // Queued jobs only (kFailedPrecondition otherwise: a running one is aborted instead).
@@ -159,6 +169,11 @@ class Controller {
   Status CoolDown(
       const CoolerWait& w);  // worker thread, without mu_; the driver's wait, cancelled by stop_
   void FitAfterRun(const Job& job);  // worker thread, without mu_
+  // The first device whose link does not answer, as the suspension's reason; without mu_.
+  std::optional<std::string> LinkLost();
+  // Checks the links every link_check_s until *done; a loss suspends the run (OnLinkLost).
+  void WatchLinks(const std::atomic<bool>& done);
+  void OnLinkLost(const std::string& why);  // takes mu_
 
   devices::StageController& stages_;
   devices::Camera& camera_;

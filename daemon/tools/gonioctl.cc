@@ -13,6 +13,7 @@
 //     cancel JOB | move JOB POS  a queued job
 //     pause | resume | abort     run control
 //     runs | show RUN            stored runs; one run with its measurements
+//     throughput                 the bench's measured throughput, as the config's [throughput]
 //     export RUN --out F.csv     the fitter's CSV
 //     wait [--timeout S]         follow progress until the daemon is idle (a progress bar)
 //
@@ -160,7 +161,7 @@ void PrintStatus(const json& s) {
 }
 
 // A run's progress: on a terminal a bar redrawn in place; in a log (not a terminal) a line when
-// the state changes and at each quarter of the run, so that a log reads as its stages.
+// the state changes and at the run's half, so that a log reads as its stages.
 class ProgressBar {
  public:
   void Show(int done, int total, double eta_s, const std::string& state) {
@@ -171,19 +172,19 @@ class ProgressBar {
       text << "[" << std::string(filled, '#') << std::string(width - filled, '.') << "] ";
     }
     text << done << "/" << total << " points  " << state << "  ETA " << Duration(eta_s);
-    const int quarter = total > 0 ? done * 4 / total : 0;
+    const int half = total > 0 ? done * 2 / total : 0;
     if (line_.terminal())
       line_.Stage(text.str());
-    else if (quarter != quarter_ || state != state_)
+    else if (half != half_ || state != state_)
       line_.Stage(text.str());
-    quarter_ = quarter;
+    half_ = half;
     state_ = state;
   }
   void Done() { line_.Done(); }
 
  private:
   gonio::ProgressLine line_{std::cerr, ::isatty(2) != 0};
-  int quarter_ = -1;
+  int half_ = -1;
   std::string state_;
 };
 
@@ -279,22 +280,41 @@ std::optional<std::string> ReadText(const std::string& path) {
   return std::move(text).value();
 }
 
+// Whether a dry run prices one run only (one entry, once): its total says nothing more.
+bool OneRun(const json& j) { return j["jobs"].size() == 1 && j["jobs"][0].value("repeat", 1) == 1; }
+
+// A dry run's total, saying which entries' exposures it leaves out.
+void PrintTotal(const json& j, const std::string& also) {
+  int unpriced = 0;
+  for (const json& x : j["jobs"]) unpriced += x.value("estimate_priced", true) ? 0 : 1;
+  std::string note = unpriced > 0 ? std::to_string(unpriced) + " line(s) motion only" : "";
+  if (!also.empty()) note += (note.empty() ? "" : "; ") + also;
+  std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
+            << " of bench time for motion and exposure" << (note.empty() ? "" : " (" + note + ")")
+            << "\n";
+}
+
 void PrintScheduleEntry(const json& x) {
-  std::cout << "  line " << x["line"] << ": " << x["repeat"] << " x " << x.value("plan", "") << ": "
-            << x["points"] << " points";
-  if (x.value("skipped", 0) > 0) std::cout << " (" << x["skipped"] << " skipped)";
-  std::cout << ", about " << Duration(x.value("estimate_s", 0.0)) << " each (from "
-            << x.value("estimate_basis", std::string("?")) << ")";
+  std::ostringstream line;
+  line << "line " << x["line"] << ": " << x["repeat"] << " x " << x.value("plan", "") << ": "
+       << x["points"] << " points";
+  if (x.value("skipped", 0) > 0) line << " (" << x["skipped"] << " skipped)";
+  if (x.value("estimate_priced", true))
+    line << ", about " << Duration(x.value("estimate_s", 0.0)) << " each (from "
+         << x.value("estimate_basis", std::string("?")) << ")";
+  else  // the basis says why, and that the time is the motion's
+    line << ", " << x.value("estimate_basis", std::string("?")) << ", about "
+         << Duration(x.value("estimate_s", 0.0));
   if (!x["start_at_unix"].is_null()) {
     const std::time_t t = x["start_at_unix"].get<std::int64_t>();
     char b[32];
     std::strftime(b, sizeof b, "%F %R", std::localtime(&t));
-    std::cout << "; not before " << b;
+    line << "; not before " << b;
   }
   if (!x["cooler_setpoint_c"].is_null())
-    std::cout << "; first cool to " << x["cooler_setpoint_c"].get<double>() << " C";
-  if (!x["fit"].empty()) std::cout << "; fit " << x["fit"].dump() << " after each";
-  std::cout << "\n";
+    line << "; first cool to " << x["cooler_setpoint_c"].get<double>() << " C";
+  if (!x["fit"].empty()) line << "; fit " << x["fit"].dump() << " after each";
+  std::cout << gonio::Wrap(line.str(), 100, "  ", "    ");
 }
 
 // A plan's dry run: priced by the daemon as a schedule of one job (the same validation and
@@ -310,8 +330,7 @@ int DryRunPlan(Ctl& ctl, const std::string& plan_path, const std::string& plan, 
   return ctl.Print(ctl.api().Post("/api/v1/schedules", body), [&](const json& j) {
     std::cout << "plan " << plan_path << " (dry run; nothing queued):\n";
     for (const json& x : j["jobs"]) PrintScheduleEntry(x);
-    std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
-              << " of bench time for motion and exposure\n";
+    if (!OneRun(j)) PrintTotal(j, "");
   });
 }
 
@@ -364,13 +383,11 @@ int Schedule(Ctl& ctl, const std::string& schedule_path, bool dry_run, bool wait
     if (dry_run) {
       std::cout << "schedule " << schedule_path << " (dry run; nothing queued):\n";
       for (const json& x : j["jobs"]) PrintScheduleEntry(x);
+      if (!OneRun(j)) PrintTotal(j, "start times and cooling not counted");
     } else {
       for (const json& x : j["jobs"])
         std::cout << "job " << x["id"] << " queued: " << x.value("name", "") << "\n";
     }
-    std::cout << "total: about " << Duration(j.value("estimate_s", 0.0))
-              << " of bench time for motion and exposure (start times and cooling not "
-                 "counted)\n";
   });
   if (rc != 0 || !wait_after || dry_run) return rc;
   return ctl.WaitIdle();
@@ -467,6 +484,21 @@ int Runs(Ctl& ctl) {
   });
 }
 
+// The bench's throughput as the instrument config's [throughput] table, to paste into it.
+int Throughput(Ctl& ctl) {
+  return ctl.Print(ctl.api().Get("/api/v1/throughput"), [](const json& t) {
+    std::cout << std::setprecision(6) << "# the bench's throughput, measured on run " << t["run"]
+              << " (gonioctl throughput)\n[throughput]\n"
+              << "from_run = " << t["run"] << "\nscale = " << t["scale"].get<double>()
+              << "\nfloor = " << t["floor"].get<double>()
+              << "\nadu_per_value = " << t["adu_per_value"].get<double>()
+              << "\ndark_adu = " << t["dark_adu"].get<double>() << "\n";
+    if (t.contains("noise"))
+      for (const char* k : {"shot", "read", "lamp", "dark"})
+        std::cout << "noise_" << k << " = " << t["noise"][k].get<double>() << "\n";
+  });
+}
+
 int Show(Ctl& ctl, std::int64_t id) {
   return ctl.Print(ctl.api().Get("/api/v1/runs/" + std::to_string(id)), [](const json& r) {
     std::cout << "run " << r["id"] << " (" << r.value("specimen", "")
@@ -474,15 +506,20 @@ int Show(Ctl& ctl, std::int64_t id) {
     // What the run was expected to cost and what its points took.
     const bool exposed = r.contains("exposed_s") && r["exposed_s"].is_number();
     const bool estimated = r.contains("estimate") && r["estimate"].is_object();
-    if (exposed) std::cout << "exposure " << std::lround(r["exposed_s"].get<double>()) << " s";
+    std::ostringstream cost;
+    if (exposed) cost << "exposure " << std::lround(r["exposed_s"].get<double>()) << " s";
     if (estimated) {
       const json& e = r["estimate"];
-      std::cout << (exposed ? ", " : "exposure ") << "estimated "
-                << std::lround(e.value("exposure_s", 0.0)) << " s of "
-                << std::lround(e.value("total_s", 0.0)) << " s with motion, from "
-                << e.value("basis", std::string("?"));
+      const double priced_s = e.value("exposure_s", 0.0);
+      cost << (exposed ? ", " : "exposure ") << "estimated " << std::lround(priced_s) << " s";
+      if (exposed && priced_s > 0)
+        cost << " (" << std::showpos
+             << std::lround(100 * (priced_s / r["exposed_s"].get<double>() - 1)) << std::noshowpos
+             << " %)";
+      cost << " of " << std::lround(e.value("total_s", 0.0)) << " s with motion, from "
+           << e.value("basis", std::string("?"));
     }
-    if (exposed || estimated) std::cout << "\n";
+    if (exposed || estimated) std::cout << gonio::Wrap(cost.str(), 100, "", "  ");
     std::cout << "theta_l  theta_v   value          sigma       exposure_s\n";
     for (const json& m : r["measurements"])
       std::cout << std::setw(7) << m["theta_l_deg"].get<double>() << "  " << std::setw(7)
@@ -594,6 +631,8 @@ static int Main(int argc, char** argv) {
   auto* resume = app.add_subcommand("resume", "resume a paused, suspended or faulted run");
   auto* abort = app.add_subcommand("abort", "end the current run (stages stopped)");
   auto* runs = app.add_subcommand("runs", "stored runs");
+  auto* throughput = app.add_subcommand(
+      "throughput", "the bench's measured throughput, as the instrument config's [throughput]");
   auto* show = app.add_subcommand("show", "one run and its measurements");
   show->add_option("run", id)->required();
   auto* exp = app.add_subcommand("export", "a run as the fitter's CSV");
@@ -654,6 +693,7 @@ static int Main(int argc, char** argv) {
   if (*abort) return ctl.Print(api.Post("/api/v1/abort", json::object()), PrintStatus);
   if (*runs) return Runs(ctl);
   if (*show) return Show(ctl, id);
+  if (*throughput) return Throughput(ctl);
   if (*exp) return Export(ctl, id, out);
   if (*plot) {
     po.models = models;

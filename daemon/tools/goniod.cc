@@ -127,6 +127,7 @@ int main(int argc, char** argv) {
   daemon::ControllerOptions co;
   co.engine.linear_limit_adu = cfg->camera.linear_limit_adu;
   co.engine.axes = cfg->axes;  // prices an adaptive run's moves against its budget
+  if (cfg->throughput) co.throughput = acquisition::ThroughputOf(*cfg->throughput);
   co.suspenders.temperature_setpoint_c = setpoint;
   co.suspenders.temperature_band_c = band;
   co.suspenders.monitor_floor_w = floor_w;

@@ -368,8 +368,12 @@ TEST(Plan, BeforeAnyRunPointsArePricedByTheEnginesRangingOnTheExpectedLobe) {
   EXPECT_EQ(e.ranging_frames, 2);
   const double t1 = std::pow(10.0, 5.0 / 8);
   EXPECT_NEAR(e.exposure_s, 5 * t0 + 5 * t1 + 5 * 20 + 3 * 20, 1e-9);
+  // Run 0 is no run: the throughput the instrument config states.
   EXPECT_EQ(DescribeEstimateBasis(nullptr, &f),
-            "the expected lobe (Beckmann alpha 0.344) at run 0's throughput");
+            "the expected lobe (Beckmann alpha 0.344) at the configured throughput");
+  f.bench.run = 7;
+  EXPECT_EQ(DescribeEstimateBasis(nullptr, &f),
+            "the expected lobe (Beckmann alpha 0.344) at run 7's throughput");
 }
 
 // With an earlier run's exposures, points are priced at what they took then: here every point at

@@ -10,7 +10,9 @@
 #include <sstream>
 #include <string>
 
+#include "acquisition/exposure.h"
 #include "acquisition/storage.h"
+#include "config/instrument_config.h"
 #include "fitting/samples_csv.h"
 #include "tests/support/storage_fixture.h"
 
@@ -372,6 +374,81 @@ TEST_F(StorageTest, TheDarkSetsShareOfSigmaIsStoredAndExportedWithTheSet) {
   auto samples = fitting::ParseSamplesCsv(text, "export");
   ASSERT_TRUE(samples.ok()) << samples.error().message;
   EXPECT_EQ(samples->size(), 3u);
+}
+
+}  // namespace
+}  // namespace gonio::acquisition
+
+namespace gonio::acquisition {
+namespace {
+
+// The demo's plan of the ground glass on the demo bench's axes.
+struct DemoPlan {
+  Plan plan;
+  std::vector<PlannedPoint> points;
+  std::vector<devices::AxisSettings> axes;
+};
+DemoPlan LoadDemoPlan() {
+  PlanContext c;
+  auto specimens = LoadSpecimens(GONIO_SOURCE_DIR "/config/samples.toml");
+  EXPECT_TRUE(specimens.ok());
+  if (specimens.ok()) c.specimens = *specimens;
+  devices::AxisSettings sample{.name = "sample", .slave_id = 1};
+  sample.min_deg = -90, sample.max_deg = 90;
+  devices::AxisSettings arm{.name = "arm", .slave_id = 2};
+  arm.min_deg = 0, arm.max_deg = 360;
+  c.axes = {sample, arm};
+  c.image_width = c.image_height = 512;
+  auto plan = LoadPlan(GONIO_SOURCE_DIR "/config/plan_demo.toml", c);
+  EXPECT_TRUE(plan.ok()) << (plan.ok() ? "" : plan.error().message);
+  DemoPlan d{plan.ok() ? *plan : Plan{}, {}, c.axes};
+  if (plan.ok()) d.points = ExpandPoints(*plan, c);
+  return d;
+}
+
+// A new database has no run to price a plan on: its estimate says so and gives the motion only,
+// never the plan's first exposure (where ranging starts: 90 times short on the demo). With the
+// instrument config's [throughput] (config/instrument.toml's, read as goniod reads it) the
+// exposures are priced from the specimen's expected lobe, far above that first exposure.
+TEST_F(StorageTest, ANewDatabaseIsPricedFromTheConfiguredThroughputOrSaysWhyItCannotBe) {
+  auto s = Storage::Open(path);
+  ASSERT_TRUE(s.ok());
+  const DemoPlan d = LoadDemoPlan();
+  ASSERT_FALSE(d.points.empty());
+  EstimateParts naive;
+  EstimateSeconds(d.plan, d.points, d.axes, d.plan.exposure.initial_s, nullptr, nullptr, &naive);
+
+  auto unpriced = EstimateRun(**s, d.plan, d.points, d.axes, 65000, 12);
+  ASSERT_TRUE(unpriced.ok()) << unpriced.error().message;
+  EXPECT_FALSE(unpriced->priced);
+  EXPECT_EQ(unpriced->exposure_s, 0);
+  EXPECT_NEAR(unpriced->total_s, naive.motion_s, 1e-9);
+  EXPECT_NE(unpriced->basis.find("exposures not priced: this database has no finished run with "
+                                 "a fit"),
+            std::string::npos)
+      << unpriced->basis;
+
+  auto cfg = config::LoadInstrumentConfig(GONIO_SOURCE_DIR "/config/instrument.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  ASSERT_TRUE(cfg->throughput.has_value()) << "config/instrument.toml states the bench's";
+  const Throughput configured = ThroughputOf(*cfg->throughput);
+  EXPECT_EQ(configured.run, 0);
+  EXPECT_TRUE(configured.noise.has_value());
+  auto priced = EstimateRun(**s, d.plan, d.points, d.axes, 65000, 12, configured);
+  ASSERT_TRUE(priced.ok()) << priced.error().message;
+  EXPECT_TRUE(priced->priced);
+  EXPECT_EQ(priced->basis, "the expected lobe (Beckmann alpha 0.344) at the configured throughput");
+  EXPECT_GT(priced->exposure_s, 10 * naive.exposure_s);
+  EXPECT_NEAR(priced->total_s, priced->exposure_s + naive.motion_s, 0.05 * priced->total_s);
+
+  // A specimen with no expected width cannot be forecast even so: said, not guessed.
+  DemoPlan unknown = d;
+  unknown.plan.specimen.expected_alpha.reset();
+  auto no_width = EstimateRun(**s, unknown.plan, unknown.points, d.axes, 65000, 12, configured);
+  ASSERT_TRUE(no_width.ok());
+  EXPECT_FALSE(no_width->priced);
+  EXPECT_NE(no_width->basis.find("gives it no expected_alpha"), std::string::npos)
+      << no_width->basis;
 }
 
 }  // namespace

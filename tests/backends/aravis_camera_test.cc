@@ -5,6 +5,9 @@
 // stable temperature.
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <cstdio>
+
 #include <atomic>
 #include <cstdio>
 #include <memory>
@@ -151,6 +154,30 @@ TEST_F(CameraDriver, ACameraThatWentAwayIsReopened) {
   auto f = cam->Snap();
   ASSERT_TRUE(f.ok()) << f.error().message;
   EXPECT_EQ(cam->reopens(), 1);
+}
+
+// The link check (the daemon's watch beside an exposure): a GVCP register read on a socket of its
+// own, answered while the camera is there, an error within a second once it has gone (nothing
+// listens on its GVCP port: ICMP port unreachable), and answered again once it is back, with no
+// reopen of the driver's own connection.
+TEST_F(CameraDriver, TheLinkCheckSeesACameraGoneWithinASecondAndBackAgain) {
+  Start();
+  auto cam = Open();
+  ASSERT_TRUE(cam);
+  EXPECT_TRUE(cam->CheckLink().ok());
+  sim_camera.reset();
+  const auto t0 = std::chrono::steady_clock::now();
+  const Status gone = cam->CheckLink();
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_FALSE(gone.ok());
+  EXPECT_NE(gone.error().message.find("camera 127.0.0.1"), std::string::npos)
+      << gone.error().message;
+  std::printf("a gone camera's link check failed after %.3f s: %s\n", took,
+              gone.error().message.c_str());
+  EXPECT_LT(took, 1.0);  // two waits of 250 ms at most, whatever the host
+  Start();
+  EXPECT_TRUE(cam->CheckLink().ok());
+  EXPECT_EQ(cam->reopens(), 0);
 }
 
 // Issue #18: a camera that stays away long enough for the reopen to fail, then comes back, is

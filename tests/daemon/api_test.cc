@@ -11,6 +11,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <ctime>
 #include <filesystem>
@@ -628,16 +629,141 @@ TEST_F(DaemonApi, OddIdsWrongTypedFieldsAndLargeBodiesAre4xxNamingTheProblem) {
     auto [st, j] = Post("/api/v1/jobs", big, Auth());
     EXPECT_EQ(st, 413) << j.dump();
   }
-  // The headers of a 100 MB body, and no body: the reply comes at once, then the end of the
-  // connection (a server that read the body would wait for it).
+  // The headers of a 3 MB body (within the bound), no token and no body: the reply comes at
+  // once, then the end of the connection (a server that read the body would wait for it). A
+  // 100 MB one is refused by its length before the token is looked at.
   const std::string reply = gonio::testing::RawExchange(
       server->port(),
       "POST /api/v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
-      "Content-Length: 104857600\r\n\r\n");
+      "Content-Length: 3000000\r\n\r\n");
   EXPECT_EQ(reply.rfind("HTTP/1.1 401", 0), 0u) << reply;
+  const std::string too_long = gonio::testing::RawExchange(
+      server->port(),
+      "POST /api/v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+      "Content-Length: 104857600\r\n\r\n");
+  EXPECT_EQ(too_long.rfind("HTTP/1.1 413", 0), 0u) << too_long;
   EXPECT_NE(reply.find("Connection: close"), std::string::npos) << reply;
   EXPECT_EQ(Get("/api/v1/status").first, 200);  // and the daemon still answers
   EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);
+}
+
+// The process's resident memory (kB), from /proc/self/status.
+long ResidentKb() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
+  return -1;
+}
+
+// What a hostile local client can send before anything is authenticated: a 200 MB request line,
+// 10 000 headers, a 1 GB declared body, 200 connections that send nothing. Each is refused with
+// its status before it is read whole (request_guard.h), goniod's memory does not grow by the
+// bytes sent, and /status answers all along.
+TEST_F(DaemonApi, RequestsAreBoundedBeforeTheyAreReadAndStatusAnswersThroughout) {
+  using gonio::testing::ConnectLoopback;
+  std::atomic<bool> probing{true};
+  std::atomic<int> probes{0}, failed{0};
+  std::atomic<double> slowest_ms{0};
+  std::thread prober([&] {
+    while (probing) {
+      httplib::Client c("127.0.0.1", server->port());
+      c.set_read_timeout(10);
+      const auto t0 = std::chrono::steady_clock::now();
+      auto r = c.Get("/api/v1/status");
+      const double ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      ++probes;
+      if (!r || r->status != 200) ++failed;
+      if (ms > slowest_ms) slowest_ms = ms;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  });
+  const long rss_before = ResidentKb();
+  long rss_max = rss_before;
+
+  {  // A 200 MB request line without a newline: 414 after 8 KiB; the rest is never kept.
+    const int fd = ConnectLoopback(server->port());
+    ASSERT_GE(fd, 0);
+    const std::string chunk = "GET /" + std::string(65536, 'a');
+    std::string reply;
+    std::size_t sent = 0;
+    char buf[4096];
+    while (sent < (200u << 20)) {
+      const ssize_t n = ::send(fd, chunk.data(), chunk.size(), MSG_NOSIGNAL);
+      for (ssize_t r; (r = ::recv(fd, buf, sizeof buf, MSG_DONTWAIT)) > 0;) reply.append(buf, r);
+      if (n <= 0) break;
+      sent += static_cast<std::size_t>(n);
+      rss_max = std::max(rss_max, ResidentKb());
+    }
+    for (ssize_t r; (r = ::recv(fd, buf, sizeof buf, 0)) > 0;) reply.append(buf, r);
+    ::close(fd);
+    std::printf("request line: %zu bytes sent before the connection closed\n", sent);
+    EXPECT_LT(sent, 64u << 20) << "the connection was not closed";
+    EXPECT_EQ(reply.rfind("HTTP/1.1 414", 0), 0u) << reply.substr(0, 200);
+    EXPECT_NE(reply.find("request line is longer than 8192 bytes"), std::string::npos) << reply;
+  }
+  {  // 10 000 headers: 431 once the head passes 32 KiB; 200 short ones: 431 by their count.
+    std::string many = "GET /api/v1/status HTTP/1.1\r\nHost: 127.0.0.1\r\n";
+    for (int k = 0; k < 10000; ++k) many += "X-H: " + std::to_string(k) + "\r\n";
+    std::string reply = gonio::testing::RawExchange(server->port(), many + "\r\n");
+    EXPECT_EQ(reply.rfind("HTTP/1.1 431", 0), 0u) << reply.substr(0, 200);
+    std::string counted = "GET /api/v1/status HTTP/1.1\r\n";
+    for (int k = 0; k < 200; ++k) counted += "X:" + std::to_string(k % 10) + "\r\n";
+    reply = gonio::testing::RawExchange(server->port(), counted + "\r\n");
+    EXPECT_EQ(reply.rfind("HTTP/1.1 431", 0), 0u) << reply.substr(0, 200);
+    EXPECT_NE(reply.find("more than 100 headers"), std::string::npos) << reply;
+  }
+  {  // A 1 GB declared body, with the token: 413 before a byte of it is read.
+    const std::string reply = gonio::testing::RawExchange(
+        server->port(), std::string("POST /api/v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\n") +
+                            "Authorization: Bearer " + kToken +
+                            "\r\nContent-Type: application/json\r\n"
+                            "Content-Length: 1073741824\r\n\r\n");
+    EXPECT_EQ(reply.rfind("HTTP/1.1 413", 0), 0u) << reply.substr(0, 200);
+    // A chunked body declares no length to bound: 411.
+    const std::string chunked =
+        gonio::testing::RawExchange(server->port(),
+                                    "POST /api/v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                    "Transfer-Encoding: chunked\r\n\r\n");
+    EXPECT_EQ(chunked.rfind("HTTP/1.1 411", 0), 0u) << chunked.substr(0, 200);
+  }
+  {  // 200 connections that send nothing: they hold no request thread, and each is answered 408
+     // and closed once the head's time is out.
+    std::vector<int> idle;
+    for (int k = 0; k < 200; ++k) idle.push_back(ConnectLoopback(server->port()));
+    EXPECT_EQ(Get("/api/v1/status").first, 200);
+    const auto t0 = std::chrono::steady_clock::now();
+    int timed_out = 0;
+    for (int fd : idle) {
+      ASSERT_GE(fd, 0);
+      timeval tv{12, 0};
+      ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+      std::string reply;
+      char buf[1024];
+      for (ssize_t r; (r = ::recv(fd, buf, sizeof buf, 0)) > 0;) reply.append(buf, r);
+      timed_out += reply.rfind("HTTP/1.1 408", 0) == 0 ? 1 : 0;
+      ::close(fd);
+    }
+    const double waited =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    EXPECT_EQ(timed_out, 200);
+    EXPECT_LT(waited, 11.0);  // the head's 5 s, and the loop's tick
+  }
+  rss_max = std::max(rss_max, ResidentKb());
+  probing = false;
+  prober.join();
+  std::printf("resident memory %ld kB before, at most %ld kB; %d status probes, slowest %.1f ms\n",
+              rss_before, rss_max, probes.load(), slowest_ms.load());
+  EXPECT_LT(rss_max - rss_before, 10 * 1024);
+  EXPECT_EQ(failed.load(), 0);
+  // Not a timing goal (bench/api_latency.cc measures that): that no probe waited out a
+  // hostile connection's bound (5 s) or a request thread's.
+  EXPECT_LT(slowest_ms.load(), 2000.0);
+  // Ordinary requests are passed through as before.
+  EXPECT_EQ(Get("/api/v1/jobs").first, 200);
+  auto [st, j] = Post("/api/v1/jobs", json{{"plan", 5}});
+  EXPECT_EQ(st, 400) << j.dump();
 }
 
 // Issue #18: event streams hold threads of their own, up to a bound; one more is refused with
@@ -723,8 +849,14 @@ TEST_F(DaemonApi, SchedulesAreValidatedWithFileAndLineAndDryRunsQueueNothing) {
   ASSERT_EQ(dry["jobs"].size(), 1u);
   EXPECT_EQ(dry["jobs"][0]["points"], 10);
   EXPECT_EQ(dry["jobs"][0]["repeat"], 3);
+  // No run yet and no configured throughput: the motion only, and why.
+  EXPECT_EQ(Get("/api/v1/throughput").first, 404);
   EXPECT_GT(dry["jobs"][0]["estimate_s"].get<double>(), 0);
-  EXPECT_EQ(dry["jobs"][0]["estimate_basis"], "the plan's initial exposure");  // no run yet
+  EXPECT_FALSE(dry["jobs"][0]["estimate_priced"].get<bool>());
+  EXPECT_NE(dry["jobs"][0]["estimate_basis"].get<std::string>().find(
+                "exposures not priced: this database has no finished run with a fit"),
+            std::string::npos)
+      << dry.dump();
   EXPECT_NEAR(dry["estimate_s"].get<double>(), 3 * dry["jobs"][0]["estimate_s"].get<double>(),
               1e-9);
   EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);
@@ -779,6 +911,16 @@ TEST_F(DaemonApi, AScheduleWaitsForItsStartTimeCoolsRunsItsRepeatsAndFitsEachRun
   EXPECT_EQ(Get("/api/v1/runs/" + std::to_string(*first_run) + "/fits").second["fits"].size(), 2u);
   EXPECT_EQ(Post(fit_path, json{{"models", {"nope"}}}).first, 400);
   EXPECT_EQ(Post("/api/v1/runs/999/fit", json::object()).first, 404);
+  // The finished runs with a fit measure the bench's throughput: what the config's [throughput]
+  // holds (gonioctl throughput), the newest run's, as the database's own estimates use it.
+  auto latest = store->LatestThroughput();
+  ASSERT_TRUE(latest.ok() && latest->has_value());
+  auto [tp, throughput] = Get("/api/v1/throughput");
+  ASSERT_EQ(tp, 200) << throughput.dump();
+  EXPECT_EQ(throughput["run"], (*latest)->run);
+  EXPECT_DOUBLE_EQ(throughput["scale"].get<double>(), (*latest)->scale);
+  EXPECT_DOUBLE_EQ(throughput["adu_per_value"].get<double>(), (*latest)->adu_per_value);
+  EXPECT_EQ(throughput.contains("noise"), (*latest)->noise.has_value());
 }
 
 // The queue is stored: a restart finds the queued jobs in their order, with their ids and their
@@ -972,8 +1114,17 @@ class DaemonDeviceOutage : public DaemonApi {
 TEST_F(DaemonDeviceOutage, AStageServerThatGoesAwayAndComesBackIsUsedAgain) {
   const auto job = SubmitPlan();
   ASSERT_TRUE(WaitFor([&] { return Done() >= 3; }, 60));
-  inst.simulated->StopStageServer();  // mid-run: between points or during a move
+  inst.simulated->StopStageServer();  // mid-run: between points, during a move or an exposure
+  // Seen within 2 s (the link watch, beside the exposure in hand), naming the device.
+  const auto gone = std::chrono::steady_clock::now();
   ASSERT_TRUE(WaitFor([&] { return State() == "suspended"; }, 30)) << State();
+  const double seen_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - gone).count();
+  std::printf("the stages' loss seen as 'suspended' after %.2f s\n", seen_s);
+  EXPECT_LT(seen_s, 2.0);
+  EXPECT_NE(Get("/api/v1/status").second.value("reason", std::string()).find("stage controller"),
+            std::string::npos)
+      << Get("/api/v1/status").second.dump();
   const int held = Done();
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // ~7 retries fail meanwhile
   EXPECT_EQ(Done(), held) << "measured with the stages gone";

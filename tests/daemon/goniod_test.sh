@@ -190,8 +190,23 @@ echo "restart resumed the run: $total/$total points, each once"
 sed 's/^incidence_deg = .*/incidence_deg = [0]/' "$work/plan.toml" > "$work/plan_one.toml"
 ctl submit "$work/plan_one.toml" > /dev/null
 wait_points 3 2
-stop_gonio_sim
-sleep 3
+# Killed outright (SIGKILL: no goodbye on any link): the operator is told within 2 s, with the
+# device named, not once the exposure in hand has timed out.
+kill -KILL "$sim_pid"
+t0=$(date +%s%N)
+seen=""
+while (( ($(date +%s%N) - t0) / 1000000 < 5000 )); do
+  status=$(ctl status 2>/dev/null | head -1)
+  [[ "$status" == "state: suspended"* ]] && { seen=$(( ($(date +%s%N) - t0) / 1000000 )); break; }
+  sleep 0.05
+done
+wait "$sim_pid" 2>/dev/null || true
+sim_pid=""
+[[ -n "$seen" ]] || fail "5 s after gonio-sim was killed the status still says: $status"
+((seen < 2000)) || fail "the instrument's loss was seen after $seen ms (2000 at most): $status"
+[[ "$status" =~ (stage controller|camera|source monitor) ]] || fail "the reason names no device: $status"
+echo "instrument killed mid-run: suspended after $seen ms ($status)"
+sleep 2
 restart_gonio_sim "$sim" 5 "$work"
 ctl wait --timeout 180 > "$work/wait3.out" || fail "after the power cycle: $(cat "$work/wait3.out")"
 [[ "$(q "select status from runs where id=3")" == done ]] ||

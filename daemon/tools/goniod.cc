@@ -66,7 +66,7 @@ int main(int argc, char** argv) {
   std::string host = "127.0.0.1", on_start = "resume", plans_dir;
   int port = 8470;
   std::optional<double> setpoint, floor_w;
-  double band = 2.0, poll_s = 2.0, give_up_s = 600;
+  double band = 2.0, poll_s = 2.0, give_up_s = 600, link_check_s = 0.5;
   app.add_option("-c,--config", config_path, "instrument config")
       ->required()
       ->check(CLI::ExistingFile);
@@ -91,6 +91,10 @@ int main(int argc, char** argv) {
   app.add_option("--suspend-poll", poll_s, "seconds between checks of a suspended condition")
       ->capture_default_str();
   app.add_option("--fault-after", give_up_s, "seconds a suspension may last before 'fault'")
+      ->capture_default_str();
+  app.add_option("--link-check", link_check_s,
+                 "seconds between checks that each device answers, while a run measures (0: off)")
+      ->check(CLI::Range(0.0, 60.0))
       ->capture_default_str();
   try {
     app.parse(argc, argv);
@@ -133,6 +137,7 @@ int main(int argc, char** argv) {
   co.suspenders.monitor_floor_w = floor_w;
   co.suspenders.poll_s = poll_s;
   co.suspenders.fault_give_up_s = give_up_s;
+  co.suspenders.link_check_s = link_check_s;
   {
     std::ifstream file(config_path);
     std::stringstream text;

@@ -32,10 +32,13 @@
 #   acquire_strategies  bench time against alpha error for uniform, lobe and adaptive runs on a
 #                    point-level bench, ground, etched and antiglare glass
 #                                                  -> acquire.md, acquire.json, acquire.png
+#   verdicts.sh      each fit's status word over VERDICT_RUNS (default 20) runs of the demo's plan
+#                    at normal incidence through the instrument, and the new database's first
+#                    estimate beside its run's exposure           -> verdicts.md
 #   forecast_spread  the adaptive forecast made before a first run against FORECAST_RUNS (default
 #                    8) real adaptive runs of the ground glass on the simulated instrument, one per
 #                    noise seed                    -> forecast_spread.md
-# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|forecast|sweep|api|stop|rtu|soak ...]
+# Usage: scripts/bench.sh [optics|fit|tradeoff|peer|truth|scene|measure|coverage|acquire|forecast|sweep|api|stop|verdicts|rtu|soak ...]
 #        MEASURE_REPEATS=N sets measure's noise draws per case (default 20); MEASURE_SAMPLE=text
 #        runs the cases whose "sample family mm WxH" holds it alone (ground, frosted, etched,
 #        antiglare; 2x2 for antiglare's small rectangle, 19x62 for its 3 x 10 mm one);
@@ -57,7 +60,7 @@ cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DGONIO_BUILD_TESTS=OFF >
 cmake --build build-release -j "$(nproc)"
 mkdir -p out/bench
 parts=("$@")
-[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure acquire forecast sweep api stop rtu)
+[[ ${#parts[@]} -eq 0 ]] && parts=(optics fit tradeoff peer truth scene measure acquire forecast sweep api stop verdicts rtu)
 # Debian's matplotlib/scipy are installed for the system interpreter (docs/design.md, Python helpers).
 py=/usr/bin/python3
 for part in "${parts[@]}"; do
@@ -145,11 +148,13 @@ for part in "${parts[@]}"; do
       build-release/bench/api_latency 50 2 100 | tee out/bench/api_latency.md ;;
     stop)   # goniod SIGTERM'd 20 times mid-run and 5 times with gonio-sim gone; GigE port too
       bench/sigterm_stop.sh build-release 20 | tee out/bench/sigterm_stop.md ;;
+    verdicts)  # VERDICT_RUNS (default 20) runs through the instrument, about 40 s each; GigE port
+      bench/verdicts.sh build-release "${VERDICT_RUNS:-20}" | tee out/bench/verdicts.md ;;
     rtu)    # three axes on a simulated 115200-baud RS-485 line, real time (about 40 s)
       build-release/bench/rtu_polling 115200 10 | tee out/bench/rtu_polling.md ;;
     soak)   # not in the default set: 10,000 points, several minutes
       build-release/bench/acquisition_sweep soak 10000 100 | tee out/bench/acquisition_soak.md ;;
-    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, measure, coverage, acquire, sweep, api, stop, rtu, soak)" >&2
+    *) echo "bench.sh: unknown part '$part' (optics, fit, tradeoff, peer, truth, scene, measure, coverage, acquire, forecast, sweep, api, stop, verdicts, rtu, soak)" >&2
        exit 2 ;;
   esac
 done

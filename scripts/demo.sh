@@ -85,7 +85,7 @@ echo "== the same schedule priced again, now from run 1's exposures =="
 ctl schedule config/schedule_demo.toml --dry-run
 echo "(run 1 took ${took} s of wall time at the simulator's x$speed clock:" \
   "about $((took * speed)) s of bench time, cooling included)"
-ctl export 1 --out "$work/run1.csv"
+ctl export 1 --out "$work/run1.csv" > /dev/null  # named in the last line
 
 echo "== fitting (gonio-fit): normal incidence, then the other incidences predicted =="
 # Huber: the bench's stray-light floor flattens the far tails; a robust loss keeps it from

@@ -54,6 +54,13 @@ fi
 lines=$(sed -n '/^== starting the simulated instrument/,$p' build/demo.log | wc -l)
 echo "the demo printed $lines lines after its build (build/demo.log)"
 grep -E "^(beckmann|ggx) |^== the simulator|plot_fit: wrote" build/demo.log | head -8
+# A new database's first estimate (the instrument config's [throughput]) against what its run
+# exposed, through the whole instrument: within 30 % (docs/operator.md).
+cost=$(grep -E "^exposure [0-9]+ s, estimated [0-9]+ s \([+-][0-9]+ %\)" build/demo.log | head -1)
+echo "run 1: ${cost:0:80}"
+pct=$(sed -E 's/.*\(([+-][0-9]+) %\).*/\1/' <<< "$cost")
+[[ -n "$cost" && ${pct#[+-]} -le 30 ]] ||
+  { echo "test.sh: the demo's first estimate is off by more than 30 %: '$cost'" >&2; exit 1; }
 part "the demo"
 
 if [[ $sanitize == 1 ]]; then

@@ -586,6 +586,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   stop_ = false;
   stop_reason_ = StopReason::kNone;
   if (!shutdown_) interrupt_ = false;  // a link watch's interrupt ended the last attempt
+  link_lost_ = false;
   if (!job.run) {
     const auto points = acquisition::ExpandPoints(*plan, context_);
     auto run = db_.NewRun(*plan, o_.config_text, points,
@@ -745,6 +746,14 @@ void Controller::OnPoint(const Progress& p) {
   const auto why = SuspendCondition();  // worker thread: devices are ours between points
   std::lock_guard lock(mu_);
   progress_ = p;
+  if (link_lost_) {
+    // The point whose frames were all in before the device went (the engine stores it as it
+    // stops): the outage goes on, and its end is logged at the first point after the resume.
+    nlohmann::json event = ToJson(p);
+    event["run"] = current_ && current_->run ? *current_->run : 0;
+    events_.Publish("progress", event);
+    return;
+  }
   if (!fault_logged_.empty() && current_ && current_->run) {
     const double gap = suspended_since_ > 0 ? NowS() - suspended_since_ : 0;
     const std::string what = "measuring again after " +
@@ -832,6 +841,7 @@ void Controller::OnLinkLost(const std::string& why) {
   stop_reason_ = StopReason::kSuspend;
   stop_ = true;
   interrupt_ = true;  // the exposure in hand is abandoned (its point stays pending)
+  link_lost_ = true;
   reason_ = why;
   fault_logged_ = why;  // the first point measured after it logs the outage's end
   suspended_since_ = NowS();

@@ -203,6 +203,7 @@ class Controller {
   StopReason stop_reason_ = StopReason::kNone;
   std::atomic<bool> stop_{false};
   std::atomic<bool> interrupt_{false};  // Shutdown: the point in hand is abandoned (pending)
+  bool link_lost_ = false;  // the link watch stopped this attempt (OnLinkLost); mu_ held
   std::thread worker_;
   bool started_ = false;
 };

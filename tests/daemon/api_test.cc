@@ -647,6 +647,18 @@ TEST_F(DaemonApi, OddIdsWrongTypedFieldsAndLargeBodiesAre4xxNamingTheProblem) {
   EXPECT_EQ(Get("/api/v1/jobs").second["jobs"].size(), 0u);
 }
 
+#if defined(__SANITIZE_ADDRESS__)
+constexpr bool kAddressSanitizer = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+constexpr bool kAddressSanitizer = true;
+#else
+constexpr bool kAddressSanitizer = false;
+#endif
+#else
+constexpr bool kAddressSanitizer = false;
+#endif
+
 // The process's resident memory (kB), from /proc/self/status.
 long ResidentKb() {
   std::ifstream in("/proc/self/status");
@@ -755,7 +767,9 @@ TEST_F(DaemonApi, RequestsAreBoundedBeforeTheyAreReadAndStatusAnswersThroughout)
   prober.join();
   std::printf("resident memory %ld kB before, at most %ld kB; %d status probes, slowest %.1f ms\n",
               rss_before, rss_max, probes.load(), slowest_ms.load());
-  EXPECT_LT(rss_max - rss_before, 10 * 1024);
+  // AddressSanitizer's quarantine keeps freed blocks resident (up to 256 MB): there the bound is
+  // not a measurement of goniod's, and only the normal build asserts it.
+  if (!kAddressSanitizer) EXPECT_LT(rss_max - rss_before, 10 * 1024);
   EXPECT_EQ(failed.load(), 0);
   // Not a timing goal (bench/api_latency.cc measures that): that no probe waited out a
   // hostile connection's bound (5 s) or a request thread's.

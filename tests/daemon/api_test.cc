@@ -769,7 +769,9 @@ TEST_F(DaemonApi, RequestsAreBoundedBeforeTheyAreReadAndStatusAnswersThroughout)
               rss_before, rss_max, probes.load(), slowest_ms.load());
   // AddressSanitizer's quarantine keeps freed blocks resident (up to 256 MB): there the bound is
   // not a measurement of goniod's, and only the normal build asserts it.
-  if (!kAddressSanitizer) EXPECT_LT(rss_max - rss_before, 10 * 1024);
+  if (!kAddressSanitizer) {
+    EXPECT_LT(rss_max - rss_before, 10 * 1024);
+  }
   EXPECT_EQ(failed.load(), 0);
   // Not a timing goal (bench/api_latency.cc measures that): that no probe waited out a
   // hostile connection's bound (5 s) or a request thread's.

@@ -644,25 +644,7 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   SetState(State::kRunning, fault_logged_.empty() ? "" : "retrying after " + fault_logged_);
 
   lock.unlock();
-  acquisition::Engine engine(stages_, camera_, monitor_, db_, o_.engine);
-  engine.InterruptOn(&interrupt_);
-  const std::optional<acquisition::Rectangle> rectangle = plan->rectangle;
-  engine.ShowFramesTo(
-      [this, run, rectangle](const cv::Mat1w& image, const acquisition::PlannedPoint& p, double t) {
-        FrameView about;
-        about.source = "run";
-        about.run = run;
-        about.point = p.index;
-        about.exposure_s = t;
-        about.rectangle = rectangle;
-        frames_.Put(image, o_.engine.linear_limit_adu, std::move(about));
-      });
-  std::atomic<bool> engine_done{false};
-  std::thread watch;
-  if (o_.suspenders.link_check_s > 0) watch = std::thread([&] { WatchLinks(engine_done); });
-  const gonio::Status s = engine.Run(run, *plan, stop_, [this](const Progress& p) { OnPoint(p); });
-  engine_done = true;
-  if (watch.joinable()) watch.join();
+  const gonio::Status s = MeasureWatched(run, *plan);
   if (!s.ok()) SafeState();
   lock.lock();
 
@@ -740,6 +722,31 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
       SetState(State::kPaused, "paused by the operator");
       break;
   }
+}
+
+// The engine on the run, with its frames shown and the devices' links watched beside it; without
+// mu_, on the worker thread.
+gonio::Status Controller::MeasureWatched(std::int64_t run, const acquisition::Plan& plan) {
+  acquisition::Engine engine(stages_, camera_, monitor_, db_, o_.engine);
+  engine.InterruptOn(&interrupt_);
+  const std::optional<acquisition::Rectangle> rectangle = plan.rectangle;
+  engine.ShowFramesTo(
+      [this, run, rectangle](const cv::Mat1w& image, const acquisition::PlannedPoint& p, double t) {
+        FrameView about;
+        about.source = "run";
+        about.run = run;
+        about.point = p.index;
+        about.exposure_s = t;
+        about.rectangle = rectangle;
+        frames_.Put(image, o_.engine.linear_limit_adu, std::move(about));
+      });
+  std::atomic<bool> engine_done{false};
+  std::thread watch;
+  if (o_.suspenders.link_check_s > 0) watch = std::thread([&] { WatchLinks(engine_done); });
+  const gonio::Status s = engine.Run(run, plan, stop_, [this](const Progress& p) { OnPoint(p); });
+  engine_done = true;
+  if (watch.joinable()) watch.join();
+  return s;
 }
 
 void Controller::OnPoint(const Progress& p) {

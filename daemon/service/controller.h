@@ -169,6 +169,8 @@ class Controller {
   Status CoolDown(
       const CoolerWait& w);  // worker thread, without mu_; the driver's wait, cancelled by stop_
   void FitAfterRun(const Job& job);  // worker thread, without mu_
+  // The engine on `run`, its frames shown and the links watched (WatchLinks); without mu_.
+  gonio::Status MeasureWatched(std::int64_t run, const acquisition::Plan& plan);
   // The first device whose link does not answer, as the suspension's reason; without mu_.
   std::optional<std::string> LinkLost();
   // Checks the links every link_check_s until *done; a loss suspends the run (OnLinkLost).

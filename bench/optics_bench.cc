@@ -9,8 +9,8 @@
 #include <random>
 #include <vector>
 
-#include "fitting/optics/microfacet.h"
-#include "fitting/optics/sun2008.h"
+#include "optics/microfacet.h"
+#include "optics/sun2008.h"
 
 namespace {
 

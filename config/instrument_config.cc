@@ -208,7 +208,7 @@ Status ReadBeamBlock(Reader& r, const toml::table& t, const InstrumentConfig& c,
 }
 
 // [bench]: the optics' geometry (docs/measurement.md).
-Status ReadBench(Reader& r, const toml::table& t, fitting::BenchOptics& b) {
+Status ReadBench(Reader& r, const toml::table& t, optics::BenchOptics& b) {
   GONIO_TRY(r.Keys(t, "bench",
                    {"source_distance_mm", "camera_distance_mm", "sphere_radius_mm", "lens_eta",
                     "centred_thickness_mm", "plate_half_width_mm", "mm_per_pixel", "sensor_width",

@@ -16,7 +16,7 @@
 #include "devices/camera.h"
 #include "devices/stage.h"
 #include "devices/usbtmc_transport.h"
-#include "fitting/response.h"
+#include "optics/bench_optics.h"
 
 namespace gonio::config {
 
@@ -59,7 +59,7 @@ struct InstrumentConfig {
   std::optional<devices::BeamBlockSettings> beam_block;
   // [bench]: the optics' geometry that each point's instrument response is computed from
   // (fitting/response.h). Absent: runs carry no response and are fitted with the point model.
-  std::optional<fitting::BenchOptics> bench;
+  std::optional<optics::BenchOptics> bench;
   // [throughput]: nullopt when absent (a database's own runs are then the only basis).
   std::optional<ThroughputConfig> throughput;
 };

@@ -14,8 +14,8 @@
 #include <string_view>
 #include <type_traits>
 
-#include "fitting/optics/microfacet.h"
-#include "fitting/optics/sun2008.h"
+#include "optics/microfacet.h"
+#include "optics/sun2008.h"
 
 namespace gonio::fitting {
 

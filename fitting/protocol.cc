@@ -68,4 +68,31 @@ Result<ProtocolResult> RunProtocol(std::span<const Sample> samples,
   return r;
 }
 
+std::vector<PredictionError> PredictIncidences(const FitSummary& fit,
+                                               std::span<const Sample> samples) {
+  std::vector<PredictionError> out;
+  for (const auto& g : GroupByIncidence(samples)) {
+    PredictionError e;
+    e.theta_l_deg = g.theta_l_deg;
+    e.n = static_cast<int>(g.samples.size());
+    double peak_meas = 0, peak_pred = 0, sum_rel2 = 0;
+    int n_rel = 0;
+    for (const Sample& s : g.samples) peak_meas = std::max(peak_meas, s.value);
+    for (const Sample& s : g.samples) {
+      const double p = Predict(fit, s);
+      peak_pred = std::max(peak_pred, p);
+      e.reduced_chi2 += (p - s.value) * (p - s.value) / (s.sigma * s.sigma);
+      if (s.value > 0.01 * peak_meas) {
+        sum_rel2 += (p - s.value) * (p - s.value) / (s.value * s.value);
+        ++n_rel;
+      }
+    }
+    e.reduced_chi2 /= std::max(1, e.n);
+    e.rms_relative = n_rel ? std::sqrt(sum_rel2 / n_rel) : 0;
+    e.peak_ratio = peak_meas > 0 ? peak_pred / peak_meas : 0;
+    out.push_back(e);
+  }
+  return out;
+}
+
 }  // namespace gonio::fitting

@@ -14,6 +14,7 @@
 #include "common/result.h"
 #include "fitting/fitter.h"
 #include "fitting/model.h"
+#include "fitting/model_choice.h"
 #include "fitting/sample.h"
 
 namespace gonio::fitting {
@@ -23,6 +24,18 @@ namespace gonio::fitting {
 // list too.
 Result<std::vector<ModelSpec>> ParseModels(std::span<const std::string> names,
                                            optics::SmithG1 g1 = optics::SmithG1::kExact);
+
+// How well a fit predicts each incidence (Walter section 6: fit at normal incidence, then
+// predict 30, 60, 80 degrees).
+struct PredictionError {
+  double theta_l_deg = 0;
+  int n = 0;
+  double reduced_chi2 = 0;  // sum ((pred - value)/sigma)^2 / n
+  double rms_relative = 0;  // over samples above 1 % of the group's peak
+  double peak_ratio = 0;    // predicted peak / measured peak
+};
+std::vector<PredictionError> PredictIncidences(const FitSummary& fit,
+                                               std::span<const Sample> samples);
 
 struct ProtocolOptions {
   std::vector<ModelSpec> models;  // fitted in this order

@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "fitting/optics/fresnel.h"
+#include "optics/fresnel.h"
 
 namespace gonio::fitting {
 namespace {
@@ -161,32 +161,6 @@ std::vector<ConeDirection> Cone(const V& w, double half, int rings, int per_ring
 
 double ConeHalfAngle(double solid_angle_sr) {
   return std::acos(std::clamp(1 - solid_angle_sr / (2 * optics::kPi), -1.0, 1.0));
-}
-
-Status BenchOptics::Validate() const {
-  const std::pair<const char*, double> lengths[] = {
-      {"source_distance_mm", source_distance_mm},   {"camera_distance_mm", camera_distance_mm},
-      {"sphere_radius_mm", sphere_radius_mm},       {"centred_thickness_mm", centred_thickness_mm},
-      {"plate_half_width_mm", plate_half_width_mm}, {"mm_per_pixel", mm_per_pixel}};
-  for (const auto& [name, value] : lengths)
-    if (!PositiveFinite(value))
-      return InvalidArgument(std::string("bench.") + name + " must be a finite number > 0");
-  if (!(lens_eta > 1 && lens_eta < 3)) return InvalidArgument("bench.lens_eta must lie in (1, 3)");
-  if (sensor_width < 1 || sensor_height < 1)
-    return InvalidArgument("bench.sensor_width and sensor_height must be >= 1");
-  for (const auto& [name, value] : {std::pair{"angle_sigma_deg", angle_sigma_deg},
-                                    {"thickness_sigma_mm", thickness_sigma_mm},
-                                    {"rectangle_sigma_px", rectangle_sigma_px}})
-    if (!(std::isfinite(value) && value >= 0 && value < 1000))
-      return InvalidArgument(std::string("bench.") + name + " must be a finite number >= 0");
-  if (!(std::abs(axis_x_px) <= sensor_width && std::abs(axis_y_px) <= sensor_height))
-    return InvalidArgument("bench.axis_x_px and axis_y_px must be finite and on the sensor");
-  if (!(std::isfinite(source_sr) && source_sr >= 0 && source_sr < 1) ||
-      !(std::isfinite(receiver_sr) && receiver_sr >= 0 && receiver_sr < 1))
-    return InvalidArgument("bench.source_sr and receiver_sr must lie in [0, 1) sr");
-  if (!(camera_distance_mm > sphere_radius_mm && source_distance_mm > sphere_radius_mm))
-    return InvalidArgument("bench: the source and the camera must lie outside the lens's sphere");
-  return OkStatus();
 }
 
 Status ResponseSetup::Validate() const {

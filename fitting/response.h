@@ -38,39 +38,13 @@
 #include <vector>
 
 #include "common/result.h"
-#include "fitting/optics/vecmath.h"
+#include "optics/bench_optics.h"
+#include "optics/vecmath.h"
 
 namespace gonio::fitting {
 
-// The bench's optics, from the instrument configuration's [bench] table.
-struct BenchOptics {
-  double source_distance_mm = 610;
-  double camera_distance_mm = 885;
-  double sphere_radius_mm = 37.5;
-  double lens_eta = 1.51;             // the hemisphere lens (and the plate: one index)
-  double centred_thickness_mm = 6.0;  // the plate thickness that puts O on the rough surface
-  double plate_half_width_mm = 50;
-  double mm_per_pixel = 0.16;  // object-side pixel pitch at O
-  int sensor_width = 512, sensor_height = 512;
-  double source_sr = 0.000076;    // the fibre end's solid angle at the sample
-  double receiver_sr = 0.000039;  // the lens aperture's at the sample
-  // What the geometry is known to: the uncertainty budget's geometry components (fitter.h,
-  // GeometryBudget). 0 means not stated, and the fit says it leaves that component out.
-  //   angle_sigma_deg: each stage's read-back angle, per point (encoder resolution / sqrt 12 and
-  //     repeatability); it enters each sample's sigma through the local slope of the signal.
-  //   thickness_sigma_mm: the plate's thickness (so the sphere centre's offset), common to a run.
-  //   rectangle_sigma_px: the rectangle's position against the optical axis (the camera's
-  //     alignment), output pixels, common to a run.
-  double angle_sigma_deg = 0;
-  double thickness_sigma_mm = 0;
-  double rectangle_sigma_px = 0;
-  // Where the optical axis meets the sensor, sensor pixels right of and below its centre (the
-  // camera's alignment; 0 = the centre). The fitter moves it by fractions of a pixel to profile
-  // the rectangle's position (fitter.h, GeometryUse).
-  double axis_x_px = 0, axis_y_px = 0;
-
-  Status Validate() const;  // positive, finite lengths; sensor size; apertures >= 0
-};
+// The response is traced through the bench's optics (optics/bench_optics.h).
+using optics::BenchOptics;
 
 // Where a plan's rectangle lies on the sensor: output pixels of the camera's region.
 struct SensorRectangle {

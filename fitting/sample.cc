@@ -112,4 +112,19 @@ Status ValidateSamples(std::span<const Sample> samples, int n_params, const std:
   return OkStatus();
 }
 
+std::vector<IncidenceGroup> GroupByIncidence(std::span<const Sample> samples) {
+  std::vector<IncidenceGroup> groups;
+  std::vector<optics::Vec3<double>> keys;
+  for (const Sample& s : samples) {
+    std::size_t g = 0;
+    while (g < keys.size() && optics::LengthSquared(keys[g] - s.light) > 1e-12) ++g;
+    if (g == keys.size()) {
+      keys.push_back(s.light);
+      groups.push_back({ThetaLightDeg(s), {}});
+    }
+    groups[g].samples.push_back(s);
+  }
+  return groups;
+}
+
 }  // namespace gonio::fitting

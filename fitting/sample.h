@@ -7,8 +7,8 @@
 #include <vector>
 
 #include "common/result.h"
-#include "fitting/optics/vecmath.h"
 #include "fitting/response.h"
+#include "optics/vecmath.h"
 
 namespace gonio::fitting {
 
@@ -77,5 +77,12 @@ std::string Where(const Sample& s, std::size_t index, const std::string& source 
 // tabulated truth's own Monte Carlo error - would otherwise make every fit "poor" by chi-square.
 // relative must be finite and >= 0 (0 returns the samples unchanged).
 std::vector<Sample> WithSystematic(std::span<const Sample> samples, double relative);
+
+// Samples grouped by light direction (one group per incidence of a sweep).
+struct IncidenceGroup {
+  double theta_l_deg = 0;
+  std::vector<Sample> samples;
+};
+std::vector<IncidenceGroup> GroupByIncidence(std::span<const Sample> samples);
 
 }  // namespace gonio::fitting

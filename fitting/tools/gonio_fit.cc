@@ -23,6 +23,7 @@
 
 #include "common/progress_line.h"
 #include "common/wrap.h"
+#include "fitting/empirical_d.h"
 #include "fitting/fitter.h"
 #include "fitting/protocol.h"
 #include "fitting/samples_csv.h"

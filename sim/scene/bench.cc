@@ -7,7 +7,7 @@
 #include <opencv2/core/utility.hpp>
 
 #include "common/bench_angles.h"
-#include "fitting/optics/fresnel.h"
+#include "optics/fresnel.h"
 #include "sim/truth/scattering.h"
 
 namespace gonio::sim {

@@ -6,7 +6,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "fitting/optics/vecmath.h"
+#include "optics/vecmath.h"
 
 namespace gonio::sim {
 

@@ -2,8 +2,8 @@
 
 #include <cmath>
 
-#include "fitting/optics/microfacet.h"
-#include "fitting/optics/sun2008.h"
+#include "optics/microfacet.h"
+#include "optics/sun2008.h"
 #include "sim/truth/monte_carlo.h"
 
 namespace gonio::sim {

@@ -7,7 +7,7 @@
 #include <optional>
 #include <random>
 
-#include "fitting/optics/fresnel.h"
+#include "optics/fresnel.h"
 #include "sim/truth/monte_carlo.h"
 #include "sim/truth/parallel.h"
 #include "sim/truth/scattering.h"

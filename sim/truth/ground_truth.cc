@@ -6,7 +6,7 @@
 #include <cstdlib>
 #include <sstream>
 
-#include "fitting/optics/microfacet.h"
+#include "optics/microfacet.h"
 
 namespace gonio::sim {
 

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <random>
 
-#include "fitting/optics/vecmath.h"
+#include "optics/vecmath.h"
 
 namespace gonio::sim {
 

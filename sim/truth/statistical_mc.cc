@@ -4,8 +4,8 @@
 #include <random>
 #include <thread>
 
-#include "fitting/optics/distribution.h"
-#include "fitting/optics/fresnel.h"
+#include "optics/distribution.h"
+#include "optics/fresnel.h"
 #include "sim/truth/monte_carlo.h"
 #include "sim/truth/parallel.h"
 #include "sim/truth/scattering.h"

@@ -339,7 +339,7 @@ TEST_F(DaemonApi, TheLatestFrameComesFromSnapsBetweenRunsAndFromTheRunsPoints) {
 // sample (pixels x pitch) and the spread of directions, which grows with it (nearly linearly at
 // these sizes: the lens images the sample's centre with little distortion).
 TEST_F(DaemonApi, ARectanglesCoverageIsItsSizeAtTheSampleAndTheSpreadItImplies) {
-  const fitting::BenchOptics bench;  // what the fixture's context has
+  const optics::BenchOptics bench;  // what the fixture's context has
   auto [code, small] = Get("/api/v1/rectangle?x=253&y=246&width=6&height=19");
   ASSERT_EQ(code, 200) << small.dump();
   EXPECT_NEAR(small["width_mm"].get<double>(), 6 * bench.mm_per_pixel, 1e-12);

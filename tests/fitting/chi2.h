@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "fitting/optics/vecmath.h"
+#include "optics/vecmath.h"
 #include "tests/fitting/sphere_quadrature.h"
 
 namespace gonio::optics::testing {

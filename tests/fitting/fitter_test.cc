@@ -2,6 +2,9 @@
 // paper's extrapolation protocol, model selection, narrow lobes, bad starts, grazing-only data,
 // robust loss, eta, and the empirical D.
 #include "fitting/fitter.h"
+#include "fitting/empirical_d.h"
+#include "fitting/model_choice.h"
+#include "fitting/protocol.h"
 
 #include <gtest/gtest.h>
 

@@ -7,7 +7,7 @@
 #include <iostream>
 #include <random>
 
-#include "fitting/optics/microfacet.h"
+#include "optics/microfacet.h"
 #include "tests/fitting/sphere_quadrature.h"
 
 namespace gonio::optics {

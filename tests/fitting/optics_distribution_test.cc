@@ -5,7 +5,7 @@
 #include <cmath>
 #include <iostream>
 
-#include "fitting/optics/distribution.h"
+#include "optics/distribution.h"
 #include "tests/fitting/sphere_quadrature.h"
 
 namespace gonio::optics {

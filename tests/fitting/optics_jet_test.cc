@@ -4,8 +4,8 @@
 #include <ceres/jet.h>
 #include <gtest/gtest.h>
 
-#include "fitting/optics/microfacet.h"
-#include "fitting/optics/sun2008.h"
+#include "optics/microfacet.h"
+#include "optics/sun2008.h"
 
 namespace gonio::optics {
 namespace {

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "fitting/optics/microfacet.h"
+#include "optics/microfacet.h"
 #include "tests/fitting/chi2.h"
 
 namespace gonio::optics {

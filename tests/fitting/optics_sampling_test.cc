@@ -6,7 +6,7 @@
 #include <random>
 #include <string>
 
-#include "fitting/optics/microfacet.h"
+#include "optics/microfacet.h"
 #include "tests/fitting/chi2.h"
 
 namespace gonio::optics {

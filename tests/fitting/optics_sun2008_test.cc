@@ -5,8 +5,8 @@
 #include <cmath>
 #include <random>
 
-#include "fitting/optics/microfacet.h"
-#include "fitting/optics/sun2008.h"
+#include "optics/microfacet.h"
+#include "optics/sun2008.h"
 
 namespace gonio::optics {
 namespace {

@@ -5,7 +5,7 @@
 #include <boost/math/quadrature/gauss.hpp>
 #include <cmath>
 
-#include "fitting/optics/vecmath.h"
+#include "optics/vecmath.h"
 
 namespace gonio::optics::testing {
 

@@ -6,7 +6,7 @@
 
 #include <cmath>
 
-#include "fitting/optics/microfacet.h"
+#include "optics/microfacet.h"
 
 namespace gonio::sim {
 namespace {

@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "devices/scpi_power_meter.h"
-#include "fitting/optics/microfacet.h"
+#include "optics/microfacet.h"
 #include "sim/camera/camera.h"
 #include "sim/monitor/power_meter.h"
 #include "sim/truth/ground_truth.h"

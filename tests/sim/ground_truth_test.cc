@@ -8,7 +8,7 @@
 #include <cstdio>
 
 #include "fitting/fitter.h"
-#include "fitting/optics/fresnel.h"
+#include "optics/fresnel.h"
 #include "sim/truth/compare.h"
 #include "sim/truth/ground_truth.h"
 #include "sim/truth/monte_carlo.h"

@@ -29,9 +29,9 @@
 
 #include <optional>
 
-#include "fitting/optics/distribution.h"
-#include "fitting/optics/fresnel.h"
-#include "fitting/optics/vecmath.h"
+#include "optics/distribution.h"
+#include "optics/fresnel.h"
+#include "optics/vecmath.h"
 
 namespace gonio::optics {
 

@@ -26,7 +26,7 @@
 #include <concepts>
 #include <limits>
 
-#include "fitting/optics/vecmath.h"
+#include "optics/vecmath.h"
 
 namespace gonio::optics {
 

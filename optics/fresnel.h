@@ -1,7 +1,7 @@
 // Fresnel reflectance of a smooth dielectric interface for unpolarised light.
 #pragma once
 
-#include "fitting/optics/vecmath.h"
+#include "optics/vecmath.h"
 
 namespace gonio::optics {
 

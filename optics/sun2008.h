@@ -23,9 +23,9 @@
 // eq. 25 is eq. 21 with G(i, o, m) replaced by V(0, theta_i) V(0, theta_o).
 #pragma once
 
-#include "fitting/optics/fresnel.h"
-#include "fitting/optics/microfacet.h"
-#include "fitting/optics/vecmath.h"
+#include "optics/fresnel.h"
+#include "optics/microfacet.h"
+#include "optics/vecmath.h"
 
 namespace gonio::optics {
 

@@ -96,6 +96,156 @@ struct JointUse {
   Eigen::VectorXd estimate;
 };
 
+// What one profile's probes give (JointProfileAt): the refit at the centre, and with
+// u = (offset - at) / step, chi2(u) = C + b.u + u.Q.u and w(u) = w0 + w1.u + u.W.u; per quantity
+// whether its data terms enter.
+struct ProbedQuadratic {
+  FitSummary centre;
+  Eigen::VectorXd b, w1;
+  Eigen::MatrixXd Q, W;
+  std::vector<bool> data;
+};
+
+// The probes' refits and the quadratic through them (the diagonal from the single probes, the
+// cross terms from the pairs where `cross`); marks each quantity probed, flat or left out in
+// `out`. nullopt when the refit at `at` does not converge.
+std::optional<ProbedQuadratic> ProbeAbout(std::span<const Sample> used,
+                                          const std::vector<Quantity>& q, const SolveOptions& o,
+                                          const FitSummary& fit, const FitSummary& base,
+                                          const Eigen::VectorXd& at, const Eigen::VectorXd& step,
+                                          bool cross, const std::vector<bool>& excluded,
+                                          JointUse& out) {
+  const int n = static_cast<int>(q.size());
+  auto refit = [&](const Eigen::VectorXd& d) -> std::optional<FitSummary> {
+    auto m = MovedBy(used, q, d);
+    if (!m) return std::nullopt;
+    std::ostringstream t;
+    t << "the geometry's profile: a refit with its setup moved by (" << d.transpose() << ")";
+    ReportProgress(o, t.str());
+    return MovedRefit(*m, o, fit);
+  };
+  std::optional<FitSummary> centre = at.isZero() ? std::optional<FitSummary>(base) : refit(at);
+  if (!centre) return std::nullopt;
+  std::vector<std::optional<FitSummary>> up(n), down(n);
+  for (int k = 0; k < n; ++k) {
+    Eigen::VectorXd e = Eigen::VectorXd::Zero(n);
+    e[k] = step[k];
+    up[k] = refit(at + e);
+    down[k] = refit(at - e);
+  }
+  ProbedQuadratic d{*centre,
+                    Eigen::VectorXd::Zero(n),
+                    Eigen::VectorXd::Zero(n),
+                    Eigen::MatrixXd::Zero(n, n),
+                    Eigen::MatrixXd::Zero(n, n),
+                    std::vector<bool>(n, false)};
+  for (int k = 0; k < n; ++k) {
+    if (up[k] && down[k]) {
+      out.use[k].probed = true;
+      d.b[k] = (up[k]->chi2 - down[k]->chi2) / 2;
+      d.Q(k, k) = (up[k]->chi2 + down[k]->chi2) / 2 - centre->chi2;
+      d.w1[k] = (up[k]->width.value - down[k]->width.value) / 2;
+      d.W(k, k) = (up[k]->width.value + down[k]->width.value) / 2 - centre->width.value;
+      d.data[k] = d.Q(k, k) > 0 && !excluded[k];
+      out.flat[k] = !(d.Q(k, k) > 0);
+      if (out.flat[k]) out.why_not[k] = "chi-square not convex along it";
+    } else if (up[k] || down[k]) {  // one way only: linear in it
+      const std::optional<FitSummary>& one = up[k] ? up[k] : down[k];
+      d.w1[k] = (one->width.value - centre->width.value) * (up[k] ? 1 : -1);
+    } else {
+      out.left_out[k] = true;
+    }
+  }
+  for (int i = 0; i < n; ++i)
+    for (int j = i + 1; j < n; ++j) {
+      if (!cross || !d.data[i] || !d.data[j]) continue;
+      Eigen::VectorXd e = Eigen::VectorXd::Zero(n);
+      e[i] = step[i];
+      e[j] = step[j];
+      auto both = refit(at + e);
+      if (!both) continue;  // no cross term: the pair is taken as independent
+      d.Q(i, j) = d.Q(j, i) =
+          (both->chi2 - centre->chi2 - d.b[i] - d.b[j] - d.Q(i, i) - d.Q(j, j)) / 2;
+      d.W(i, j) = d.W(j, i) =
+          (both->width.value - centre->width.value - d.w1[i] - d.w1[j] - d.W(i, i) - d.W(j, j)) / 2;
+    }
+  return d;
+}
+
+// The offsets' posterior in steps, N(mu, S), from the data terms of the quantities whose data
+// enter and the priors: solved, then solved again without a quantity whose data put it beyond
+// 1.5 steps (or make the quadratic indefinite), until none does. Sets `data` to the quantities
+// whose data stayed in, and in `out` why the others' did not, which lay beyond, and the joint
+// estimates of the first solve.
+void SolvePosterior(const ProbedQuadratic& d, const FitSummary& base,
+                    const Eigen::VectorXd& prior_u, const Eigen::VectorXd& at,
+                    const Eigen::VectorXd& step, std::vector<bool>& data, Eigen::VectorXd& mu,
+                    Eigen::MatrixXd& S, JointUse& out) {
+  const int n = static_cast<int>(data.size());
+  const Eigen::VectorXd at_u = at.cwiseQuotient(step);
+  bool first_solve = true;
+  for (;;) {
+    Eigen::MatrixXd Qd = d.Q;
+    Eigen::VectorXd bd = d.b;
+    int m = 0;
+    for (int k = 0; k < n; ++k) {
+      if (data[k]) {
+        ++m;
+        continue;
+      }
+      Qd.row(k).setZero();
+      Qd.col(k).setZero();
+      bd[k] = 0;
+    }
+    // Chi-square's scale: the reduced chi-square at the data's minimum, with the quantities
+    // counted as parameters (not the unmoved refit's: a quantity far from its stated value
+    // inflates that by the very misfit it explains, which flattened the quadratic).
+    double chi2_min = base.chi2;
+    Eigen::LDLT<Eigen::MatrixXd> data_only(Qd);
+    if (m > 0 && data_only.info() == Eigen::Success && data_only.isPositive()) {
+      Eigen::MatrixXd Qm = Qd;
+      for (int k = 0; k < n; ++k)
+        if (!data[k]) Qm(k, k) = 1;  // a placeholder that leaves the others' minimum alone
+      Eigen::LLT<Eigen::MatrixXd> llt(Qm);
+      if (llt.info() == Eigen::Success) chi2_min = d.centre.chi2 - bd.dot(llt.solve(bd)) / 4;
+    }
+    const double dof = base.n_points - base.n_params - m;
+    const double inflate = dof > 0 ? std::max(1.0, chi2_min / dof) : 1.0;
+    Eigen::MatrixXd M = Qd / inflate;
+    Eigen::VectorXd g = bd / inflate;
+    for (int k = 0; k < n; ++k) {
+      M(k, k) += 1 / (prior_u[k] * prior_u[k]);
+      g[k] += 2 * at_u[k] / (prior_u[k] * prior_u[k]);
+    }
+    Eigen::LLT<Eigen::MatrixXd> llt(M);
+    int drop = -1;
+    if (llt.info() != Eigen::Success) {  // not a minimum: the largest data term goes
+      for (int k = 0; k < n; ++k)
+        if (data[k] && (drop < 0 || d.Q(k, k) > d.Q(drop, drop))) drop = k;
+      out.why_not[drop] = "chi-square not convex along it";
+    } else {
+      S = llt.solve(Eigen::MatrixXd::Identity(n, n));
+      mu = -S * g / 2;
+      if (first_solve)  // the joint estimates, before any quantity's data are dropped
+        for (int k = 0; k < n; ++k)
+          if (data[k]) out.estimate[k] = at[k] + mu[k] * step[k];
+      first_solve = false;
+      for (int k = 0; k < n; ++k)
+        if (data[k] && std::abs(mu[k]) > 1.5 && (drop < 0 || std::abs(mu[k]) > std::abs(mu[drop])))
+          drop = k;
+      if (drop >= 0) {
+        std::ostringstream w;
+        w << std::setprecision(2) << "the data put it " << at[drop] + mu[drop] * step[drop]
+          << " off, beyond the probes: check the stated value";
+        out.why_not[drop] = w.str();
+        out.beyond[drop] = true;
+      }
+    }
+    if (drop < 0) break;
+    data[drop] = false;
+  }
+}
+
 // The quantities profiled together, about `at` with probes at +-`step` (both vectors in their
 // units): least-squares refits from `fit`'s solution at `at`, at each one moved a step either
 // way, and at each pair moved a step up together. With u = (offset - at) / step they give
@@ -119,23 +269,6 @@ std::optional<JointUse> JointProfileAt(std::span<const Sample> used, const std::
                                        const Eigen::VectorXd& step, bool cross,
                                        const std::vector<bool>& excluded) {
   const int n = static_cast<int>(q.size());
-  auto refit = [&](const Eigen::VectorXd& d) -> std::optional<FitSummary> {
-    auto m = MovedBy(used, q, d);
-    if (!m) return std::nullopt;
-    std::ostringstream t;
-    t << "the geometry's profile: a refit with its setup moved by (" << d.transpose() << ")";
-    ReportProgress(o, t.str());
-    return MovedRefit(*m, o, fit);
-  };
-  std::optional<FitSummary> centre = at.isZero() ? std::optional<FitSummary>(base) : refit(at);
-  if (!centre) return std::nullopt;
-  std::vector<std::optional<FitSummary>> up(n), down(n);
-  for (int k = 0; k < n; ++k) {
-    Eigen::VectorXd e = Eigen::VectorXd::Zero(n);
-    e[k] = step[k];
-    up[k] = refit(at + e);
-    down[k] = refit(at - e);
-  }
   JointUse out;
   out.use.assign(n, NuisanceUse{});
   out.why_not.assign(n, "");
@@ -143,122 +276,26 @@ std::optional<JointUse> JointProfileAt(std::span<const Sample> used, const std::
   out.beyond.assign(n, false);
   out.flat.assign(n, false);
   out.estimate = Eigen::VectorXd::Constant(n, std::numeric_limits<double>::quiet_NaN());
-  Eigen::VectorXd b = Eigen::VectorXd::Zero(n), w1 = Eigen::VectorXd::Zero(n);
-  Eigen::MatrixXd Q = Eigen::MatrixXd::Zero(n, n), W = Eigen::MatrixXd::Zero(n, n);
-  std::vector<bool> data(n, false);  // the quantity's data terms enter
-  for (int k = 0; k < n; ++k) {
-    if (up[k] && down[k]) {
-      out.use[k].probed = true;
-      b[k] = (up[k]->chi2 - down[k]->chi2) / 2;
-      Q(k, k) = (up[k]->chi2 + down[k]->chi2) / 2 - centre->chi2;
-      w1[k] = (up[k]->width.value - down[k]->width.value) / 2;
-      W(k, k) = (up[k]->width.value + down[k]->width.value) / 2 - centre->width.value;
-      data[k] = Q(k, k) > 0 && !excluded[k];
-      out.flat[k] = !(Q(k, k) > 0);
-      if (out.flat[k]) out.why_not[k] = "chi-square not convex along it";
-    } else if (up[k] || down[k]) {  // one way only: linear in it
-      const std::optional<FitSummary>& one = up[k] ? up[k] : down[k];
-      w1[k] = (one->width.value - centre->width.value) * (up[k] ? 1 : -1);
-    } else {
-      out.left_out[k] = true;
-    }
-  }
-  for (int i = 0; i < n; ++i)
-    for (int j = i + 1; j < n; ++j) {
-      if (!cross || !data[i] || !data[j]) continue;
-      Eigen::VectorXd e = Eigen::VectorXd::Zero(n);
-      e[i] = step[i];
-      e[j] = step[j];
-      auto both = refit(at + e);
-      if (!both) {  // no cross term: the pair is taken as independent
-        continue;
-      }
-      Q(i, j) = Q(j, i) = (both->chi2 - centre->chi2 - b[i] - b[j] - Q(i, i) - Q(j, j)) / 2;
-      W(i, j) = W(j, i) =
-          (both->width.value - centre->width.value - w1[i] - w1[j] - W(i, i) - W(j, j)) / 2;
-    }
-  Eigen::VectorXd prior_u(n), at_u(n);  // the priors' sigma in steps, and `at` in steps
-  for (int k = 0; k < n; ++k) {
-    prior_u[k] = q[k].prior / step[k];
-    at_u[k] = at[k] / step[k];
-  }
-  // Solve with the quantities whose data enter; drop one whose data put it beyond the probes (or
-  // make the quadratic indefinite) and solve again.
+  const auto d = ProbeAbout(used, q, o, fit, base, at, step, cross, excluded, out);
+  if (!d) return std::nullopt;
+  Eigen::VectorXd prior_u(n);  // the priors' sigma in steps
+  for (int k = 0; k < n; ++k) prior_u[k] = q[k].prior / step[k];
+  std::vector<bool> data = d->data;
   Eigen::VectorXd mu(n);
   Eigen::MatrixXd S(n, n);
-  bool first_solve = true;
-  for (;;) {
-    Eigen::MatrixXd Qd = Q;
-    Eigen::VectorXd bd = b;
-    int m = 0;
-    for (int k = 0; k < n; ++k) {
-      if (data[k]) {
-        ++m;
-        continue;
-      }
-      Qd.row(k).setZero();
-      Qd.col(k).setZero();
-      bd[k] = 0;
-    }
-    // Chi-square's scale: the reduced chi-square at the data's minimum, with the quantities
-    // counted as parameters (not the unmoved refit's: a quantity far from its stated value
-    // inflates that by the very misfit it explains, which flattened the quadratic).
-    double chi2_min = base.chi2;
-    Eigen::LDLT<Eigen::MatrixXd> data_only(Qd);
-    if (m > 0 && data_only.info() == Eigen::Success && data_only.isPositive()) {
-      Eigen::MatrixXd Qm = Qd;
-      for (int k = 0; k < n; ++k)
-        if (!data[k]) Qm(k, k) = 1;  // a placeholder that leaves the others' minimum alone
-      Eigen::LLT<Eigen::MatrixXd> llt(Qm);
-      if (llt.info() == Eigen::Success) chi2_min = centre->chi2 - bd.dot(llt.solve(bd)) / 4;
-    }
-    const double dof = base.n_points - base.n_params - m;
-    const double inflate = dof > 0 ? std::max(1.0, chi2_min / dof) : 1.0;
-    Eigen::MatrixXd M = Qd / inflate;
-    Eigen::VectorXd g = bd / inflate;
-    for (int k = 0; k < n; ++k) {
-      M(k, k) += 1 / (prior_u[k] * prior_u[k]);
-      g[k] += 2 * at_u[k] / (prior_u[k] * prior_u[k]);
-    }
-    Eigen::LLT<Eigen::MatrixXd> llt(M);
-    int drop = -1;
-    if (llt.info() != Eigen::Success) {  // not a minimum: the largest data term goes
-      for (int k = 0; k < n; ++k)
-        if (data[k] && (drop < 0 || Q(k, k) > Q(drop, drop))) drop = k;
-      out.why_not[drop] = "chi-square not convex along it";
-    } else {
-      S = llt.solve(Eigen::MatrixXd::Identity(n, n));
-      mu = -S * g / 2;
-      if (first_solve)  // the joint estimates, before any quantity's data are dropped
-        for (int k = 0; k < n; ++k)
-          if (data[k]) out.estimate[k] = at[k] + mu[k] * step[k];
-      first_solve = false;
-      for (int k = 0; k < n; ++k)
-        if (data[k] && std::abs(mu[k]) > 1.5 && (drop < 0 || std::abs(mu[k]) > std::abs(mu[drop])))
-          drop = k;
-      if (drop >= 0) {
-        std::ostringstream w;
-        w << std::setprecision(2) << "the data put it " << at[drop] + mu[drop] * step[drop]
-          << " off, beyond the probes: check the stated value";
-        out.why_not[drop] = w.str();
-        out.beyond[drop] = true;
-      }
-    }
-    if (drop < 0) break;
-    data[drop] = false;
-  }
+  SolvePosterior(*d, base, prior_u, at, step, data, mu, S, out);
   // The width: its shift at mu, and its variance, split among the quantities by their shares
   // g_k (S g)_k + 2 ((W S)^2)_kk of the whole (negative shares, from anticorrelated quantities,
   // count 0; the split is rescaled to the whole).
-  const Eigen::VectorXd g = w1 + 2 * W * mu;
-  const Eigen::MatrixXd WS = W * S, WS2 = WS * WS;
+  const Eigen::VectorXd g = d->w1 + 2 * d->W * mu;
+  const Eigen::MatrixXd WS = d->W * S, WS2 = WS * WS;
   const double total = std::max(0.0, g.dot(S * g) + 2 * WS2.trace());
-  const double shift = centre->width.value - base.width.value + w1.dot(mu) + mu.dot(W * mu);
+  const double shift = d->centre.width.value - base.width.value + d->w1.dot(mu) + mu.dot(d->W * mu);
   const Eigen::VectorXd Sg = S * g;
   Eigen::VectorXd share(n), part(n);
   for (int k = 0; k < n; ++k) {
     share[k] = std::max(0.0, g[k] * Sg[k] + 2 * WS2(k, k));
-    part[k] = std::abs(w1[k] * mu[k] + W(k, k) * mu[k] * mu[k]);
+    part[k] = std::abs(d->w1[k] * mu[k] + d->W(k, k) * mu[k] * mu[k]);
   }
   const double share_sum = share.sum(), part_sum = part.sum();
   for (int k = 0; k < n; ++k) {
@@ -395,104 +432,81 @@ void CountNuisance(const GeometryUse& g, const BenchOptics& b, const FitOptions&
   if (fit.status != FitStatus::kFailed) JudgeFit(fit.width.sigma > 0, fit);
 }
 
-}  // namespace
-
-Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOptions& o,
-                                FitSummary fit) {
-  const Sample* known = nullptr;
-  for (const Sample& s : samples)
-    if (s.response && s.response->setup) known = &s;
-  if (fit.status == FitStatus::kFailed) return fit;
-  if (known == nullptr || !o.use_response) {
-    fit.geometry.note =
-        "the samples carry no instrument response: the geometry's uncertainty "
-        "(angles, thickness, rectangle) is not known and not in sigma";
-    return fit;
-  }
-  const BenchOptics& b = known->response->setup->bench;
-  ReportProgress(o,
-       "the geometry's uncertainty: refits with the angles, the thickness and the rectangle "
-       "as stated and moved");
-  GeometryUse g;
-  g.stated = true;
-  std::ostringstream note;
-  // The angle read-back: the arm's per point, through each sample's sigma; the sample stage's per
-  // group of points taken without moving it, as an offset of the solve (StageGroups).
-  SolveOptions so(o);
-  double angle_part = 0;
-  std::vector<Sample> widened;
-  if (b.angle_sigma_deg > 0) {
-    const double a_sigma = b.angle_sigma_deg;
-    auto stage = std::make_shared<StageGroups>();
-    stage->prior_deg = a_sigma;
-    stage->group.assign(samples.size(), -1);
-    stage->slope.assign(samples.size(), 0.0);
-    widened.assign(samples.begin(), samples.end());
-    for (std::size_t i = 0; i < widened.size(); ++i) {
-      Sample& s = widened[i];
-      if (!s.response || !s.response->setup) continue;
-      const auto [d_sample, d_arm] = StageSlopes(fit, s);
-      g.angle_max_fraction =
-          std::max(g.angle_max_fraction, a_sigma * std::hypot(d_sample, d_arm) / s.sigma);
-      s.sigma = std::hypot(s.sigma, a_sigma * d_arm);
-      const double at = s.response->at.sample_deg;
-      if (i == 0 || stage->group[i - 1] < 0 || stage->groups.back().sample_deg != at)
-        stage->groups.push_back({at, 0, 0, a_sigma});
-      ++stage->groups.back().points;
-      stage->group[i] = static_cast<int>(stage->groups.size()) - 1;
-      stage->slope[i] = d_sample;
-    }
-    const double tol = o.response_tolerance;
-    const double adds = std::hypot(1.0, g.angle_max_fraction) - 1;
-    note << std::setprecision(2) << "angle read-back +-" << b.angle_sigma_deg << " deg: at most "
-         << 100 * g.angle_max_fraction << " % of a sample's sigma (adding " << 100 * adds
-         << " % in quadrature)";
-    if (adds > tol * tol / 2) {
-      SolveOptions with_stage(o);
-      with_stage.stage = stage;
-      auto again = FitWithFloor(widened, with_stage);
-      if (!again.ok()) return again.error();
-      if (again->status != FitStatus::kFailed) {
-        const std::string floor_choice = fit.floor_choice;
-        fit = std::move(again).value();
-        if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
-        g.angle_in_fit = true;
-        so = with_stage;
-        // Its share of the width's sigma: the sigma with and without it, both uninflated by
-        // chi-square (the fit without it may have been inflated by the very scatter it explains).
-        SolveOptions plain = so, plain_without(o);
-        plain.inflate_by_reduced_chi2 = plain_without.inflate_by_reduced_chi2 = false;
-        const auto with = Refit(widened, plain, fit), without = Refit(samples, plain_without, fit);
-        if (with && without)
-          angle_part = std::sqrt(std::max(0.0, with->width.sigma * with->width.sigma -
-                                                   without->width.sigma * without->width.sigma));
-        note << ", in the fit: the arm's in each sample's sigma, the sample stage's as one offset "
-                "for each of "
-             << stage->groups.size() << " groups of points taken without moving it";
-      }
-    } else {
-      note << ", left out (the fit takes it in above " << 100 * tol * tol / 2 << " %)";
-    }
-  } else {
+// The angle read-back (GeometryUse): the arm's per point, through each sample's sigma; the sample
+// stage's per group of points taken without moving it, as an offset of the solve (StageGroups),
+// the fit redone with both where they matter. Sets `so` to the options the later refits take
+// (with the groups where they went in) and `widened` to the samples with the arm's term in their
+// sigmas; returns the angle's share of the width's sigma.
+Result<double> AngleReadBack(std::span<const Sample> samples, const FitOptions& o,
+                             const BenchOptics& b, FitSummary& fit, GeometryUse& g,
+                             std::ostringstream& note, SolveOptions& so,
+                             std::vector<Sample>& widened) {
+  if (!(b.angle_sigma_deg > 0)) {
     note << "angle read-back: not stated";
+    return 0.0;
   }
-  // Common to the run: the thickness and the rectangle's position, profiled as nuisance
-  // parameters by refits of the samples the fit used (with the angle term in their sigmas where
-  // it went in). One that does not converge leaves its part out of sigma, and the note says so;
-  // the fit itself stands.
+  double angle_part = 0;
+  const double a_sigma = b.angle_sigma_deg;
+  auto stage = std::make_shared<StageGroups>();
+  stage->prior_deg = a_sigma;
+  stage->group.assign(samples.size(), -1);
+  stage->slope.assign(samples.size(), 0.0);
+  widened.assign(samples.begin(), samples.end());
+  for (std::size_t i = 0; i < widened.size(); ++i) {
+    Sample& s = widened[i];
+    if (!s.response || !s.response->setup) continue;
+    const auto [d_sample, d_arm] = StageSlopes(fit, s);
+    g.angle_max_fraction =
+        std::max(g.angle_max_fraction, a_sigma * std::hypot(d_sample, d_arm) / s.sigma);
+    s.sigma = std::hypot(s.sigma, a_sigma * d_arm);
+    const double at = s.response->at.sample_deg;
+    if (i == 0 || stage->group[i - 1] < 0 || stage->groups.back().sample_deg != at)
+      stage->groups.push_back({at, 0, 0, a_sigma});
+    ++stage->groups.back().points;
+    stage->group[i] = static_cast<int>(stage->groups.size()) - 1;
+    stage->slope[i] = d_sample;
+  }
+  const double tol = o.response_tolerance;
+  const double adds = std::hypot(1.0, g.angle_max_fraction) - 1;
+  note << std::setprecision(2) << "angle read-back +-" << b.angle_sigma_deg << " deg: at most "
+       << 100 * g.angle_max_fraction << " % of a sample's sigma (adding " << 100 * adds
+       << " % in quadrature)";
+  if (!(adds > tol * tol / 2)) {
+    note << ", left out (the fit takes it in above " << 100 * tol * tol / 2 << " %)";
+    return 0.0;
+  }
+  SolveOptions with_stage(o);
+  with_stage.stage = stage;
+  auto again = FitWithFloor(widened, with_stage);
+  if (!again.ok()) return again.error();
+  if (again->status == FitStatus::kFailed) return 0.0;
+  const std::string floor_choice = fit.floor_choice;
+  fit = std::move(again).value();
+  if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
+  g.angle_in_fit = true;
+  so = with_stage;
+  // Its share of the width's sigma: the sigma with and without it, both uninflated by
+  // chi-square (the fit without it may have been inflated by the very scatter it explains).
+  SolveOptions plain = so, plain_without(o);
+  plain.inflate_by_reduced_chi2 = plain_without.inflate_by_reduced_chi2 = false;
+  const auto with = Refit(widened, plain, fit), without = Refit(samples, plain_without, fit);
+  if (with && without)
+    angle_part = std::sqrt(std::max(
+        0.0, with->width.sigma * with->width.sigma - without->width.sigma * without->width.sigma));
+  note << ", in the fit: the arm's in each sample's sigma, the sample stage's as one offset "
+          "for each of "
+       << stage->groups.size() << " groups of points taken without moving it";
+  return angle_part;
+}
+
+// Common to the run: the thickness and the rectangle's position, profiled together as nuisance
+// parameters (JointProfile) by refits of the samples the fit used, `used` (with the angle term in
+// their sigmas where it went in). One that does not converge leaves its part out of sigma, and
+// the note says so; the fit itself stands. Returns the width's shift at the geometry found.
+double ProfileThicknessAndRectangle(std::span<const Sample> used, const SolveOptions& so,
+                                    const BenchOptics& b, const FitSummary& fit, GeometryUse& g,
+                                    std::ostringstream& note) {
   std::optional<FitSummary> base;
-  if (!WidthConstrained(fit) && (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0)) {
-    // Refits with the response each (most of such a fit's time) for a width the data do not
-    // constrain: not worth it. A poor fit keeps them: a geometry that is off is one reason a
-    // fit is poor.
-    note << "; thickness and rectangle: not computed (the data do not constrain the width)";
-    g.note = note.str();
-    g.sample_stage = fit.geometry.sample_stage;
-    fit.width.sigma_geometry = angle_part;
-    fit.geometry = g;
-    return fit;
-  }
-  const std::span<const Sample> used = g.angle_in_fit ? std::span<const Sample>(widened) : samples;
   if (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0) {
     SolveOptions ls = so;
     ls.loss = Loss::kNone;
@@ -500,8 +514,8 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   }
   const char* why = base ? " (a refit with it moved did not converge)"
                          : " (the unmoved least-squares refit did not converge)";
-  // The quantities stated, profiled together (JointProfile): the thickness, and the rectangle's
-  // x and y (d output pixels along an axis is the optical axis as far the other way).
+  // The quantities stated: the thickness, and the rectangle's x and y (d output pixels along an
+  // axis is the optical axis as far the other way).
   std::vector<Quantity> q;
   int k_thickness = -1, k_x = -1;
   if (b.thickness_sigma_mm > 0) {
@@ -549,29 +563,75 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
   } else {
     note << "; rectangle position: not stated";
   }
-  // The fit at the most probable geometry, with the fit's own loss, from its solution: the
-  // width, k, the floor, chi-square and the residuals are then all of the geometry the data
-  // found (Predict models it too). Should that refit not converge, the width alone moves by the
-  // profile's shift and the note says so.
-  if (g.thickness.fitted || g.rectangle_x.fitted || g.rectangle_y.fitted) {
-    auto best =
-        Refit(WithSetupChanged(used, [&g](ResponseSetup& c) { MoveToFitted(g, c); }), so, fit);
-    if (best) {
-      const std::string floor_choice = fit.floor_choice;
-      const double floor_shift = fit.floor_width_shift, floor_part = fit.width.sigma_floor;
-      fit = std::move(best).value();
-      if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
-      // The refit keeps the floor's choice but not what the choice put in sigma.
-      fit.floor_width_shift = floor_shift;
-      fit.width.sigma_floor = floor_part;
-      fit.width.sigma = std::hypot(fit.width.sigma, floor_part);
-      note << "; refitted at that geometry";
-    } else {
-      fit.width.value += shift;
-      note << "; the refit at that geometry did not converge: the width moved by " << std::showpos
-           << shift << std::noshowpos << " alone";
-    }
+  return shift;
+}
+
+// The fit at the most probable geometry, with the fit's own loss, from its solution: the width,
+// k, the floor, chi-square and the residuals are then all of the geometry the data found
+// (Predict models it too). Should that refit not converge, the width alone moves by the
+// profile's `shift` and the note says so.
+void RefitAtGeometryFound(std::span<const Sample> used, const SolveOptions& so,
+                          const GeometryUse& g, double shift, FitSummary& fit,
+                          std::ostringstream& note) {
+  if (!(g.thickness.fitted || g.rectangle_x.fitted || g.rectangle_y.fitted)) return;
+  auto best =
+      Refit(WithSetupChanged(used, [&g](ResponseSetup& c) { MoveToFitted(g, c); }), so, fit);
+  if (!best) {
+    fit.width.value += shift;
+    note << "; the refit at that geometry did not converge: the width moved by " << std::showpos
+         << shift << std::noshowpos << " alone";
+    return;
   }
+  const std::string floor_choice = fit.floor_choice;
+  const double floor_shift = fit.floor_width_shift, floor_part = fit.width.sigma_floor;
+  fit = std::move(best).value();
+  if (fit.floor_choice.empty()) fit.floor_choice = floor_choice;
+  // The refit keeps the floor's choice but not what the choice put in sigma.
+  fit.floor_width_shift = floor_shift;
+  fit.width.sigma_floor = floor_part;
+  fit.width.sigma = std::hypot(fit.width.sigma, floor_part);
+  note << "; refitted at that geometry";
+}
+
+}  // namespace
+
+Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOptions& o,
+                                FitSummary fit) {
+  const Sample* known = nullptr;
+  for (const Sample& s : samples)
+    if (s.response && s.response->setup) known = &s;
+  if (fit.status == FitStatus::kFailed) return fit;
+  if (known == nullptr || !o.use_response) {
+    fit.geometry.note =
+        "the samples carry no instrument response: the geometry's uncertainty "
+        "(angles, thickness, rectangle) is not known and not in sigma";
+    return fit;
+  }
+  const BenchOptics& b = known->response->setup->bench;
+  ReportProgress(o,
+                 "the geometry's uncertainty: refits with the angles, the thickness and the "
+                 "rectangle as stated and moved");
+  GeometryUse g;
+  g.stated = true;
+  std::ostringstream note;
+  SolveOptions so(o);
+  std::vector<Sample> widened;
+  auto angle_part = AngleReadBack(samples, o, b, fit, g, note, so, widened);
+  if (!angle_part.ok()) return angle_part.error();
+  if (!WidthConstrained(fit) && (b.thickness_sigma_mm > 0 || b.rectangle_sigma_px > 0)) {
+    // Refits with the response each (most of such a fit's time) for a width the data do not
+    // constrain: not worth it. A poor fit keeps them: a geometry that is off is one reason a
+    // fit is poor.
+    note << "; thickness and rectangle: not computed (the data do not constrain the width)";
+    g.note = note.str();
+    g.sample_stage = fit.geometry.sample_stage;
+    fit.width.sigma_geometry = *angle_part;
+    fit.geometry = g;
+    return fit;
+  }
+  const std::span<const Sample> used = g.angle_in_fit ? std::span<const Sample>(widened) : samples;
+  const double shift = ProfileThicknessAndRectangle(used, so, b, fit, g, note);
+  RefitAtGeometryFound(used, so, g, shift, fit, note);
   // The sample stage's offsets of the final fit (the one at the geometry found, where it moved).
   if (g.angle_in_fit) {
     double largest = 0;  // in the prior's sigma
@@ -586,7 +646,7 @@ Result<FitSummary> WithGeometry(std::span<const Sample> samples, const FitOption
          << " of them as fitted parameters";
   const double common = std::hypot(g.width_thickness, g.width_rectangle);
   fit.width.sigma = std::hypot(fit.width.sigma, common);
-  fit.width.sigma_geometry = std::hypot(angle_part, common);
+  fit.width.sigma_geometry = std::hypot(*angle_part, common);
   g.note = note.str();
   g.sample_stage = fit.geometry.sample_stage;
   fit.geometry = g;

@@ -289,7 +289,8 @@ Result<int> TraceHeld(std::span<const Sample> samples, const FitOptions& o, Resp
   return traced;
 }
 
-std::vector<std::array<int, 3>> DecidedLevels(const std::vector<int>& modes, const ResponseCache& cache) {
+std::vector<std::array<int, 3>> DecidedLevels(const std::vector<int>& modes,
+                                              const ResponseCache& cache) {
   std::vector<std::array<int, 3>> out;
   out.reserve(modes.size());
   for (std::size_t i = 0; i < modes.size(); ++i)

@@ -89,7 +89,8 @@ Result<int> TraceHeld(std::span<const Sample> samples, const FitOptions& o, Resp
 // What each sample's model was built from: its mode and its responses' levels. The decision has
 // settled when a new one changes none of them (a level refined at the same mode counts: the
 // model built at the start's width would otherwise stay on the coarser rays).
-std::vector<std::array<int, 3>> DecidedLevels(const std::vector<int>& modes, const ResponseCache& cache);
+std::vector<std::array<int, 3>> DecidedLevels(const std::vector<int>& modes,
+                                              const ResponseCache& cache);
 
 // `samples` with each capped sample's quadrature error (ResponseCache) added to its sigma, into
 // `out` (sized once, so that a Problem's span over it stays valid); its count and largest share.

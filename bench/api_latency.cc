@@ -126,7 +126,7 @@ int main(int argc, char** argv) {
   if (!db.ok()) return 1;
   const acquisition::PlanContext& ctx = inst->context;
   daemon::ControllerOptions co;
-  co.engine.linear_limit_adu = 40000;
+  co.run_start.engine.linear_limit_adu = 40000;
   daemon::Controller controller(*inst->stages, *inst->camera, inst->monitor.monitor.get(), **db,
                                 ctx, co);
   if (!controller.Start().ok()) return 1;

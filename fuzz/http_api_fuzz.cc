@@ -76,7 +76,7 @@ struct Daemon {
     if (!db.ok()) Fail("cannot open the database: " + db.error().message);
     store = std::move(db).value();
     gonio::daemon::ControllerOptions co;
-    co.config_text = "# fuzz";
+    co.run_start.config_text = "# fuzz";
     controller = std::make_unique<gonio::daemon::Controller>(stages, camera, nullptr, *store,
                                                              gonio::fuzz::Context(), co);
     if (Status s = controller->Start(); !s.ok()) Fail("controller: " + s.error().message);

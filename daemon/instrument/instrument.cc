@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <fstream>
 #include <future>
+#include <sstream>
 #include <thread>
 #include <utility>
 
@@ -29,7 +31,7 @@ Result<std::unique_ptr<devices::StageController>> OpenStages(const config::Instr
 
 Result<OpenedMonitor> OpenMonitor(const config::InstrumentConfig& c) {
   OpenedMonitor m;
-  if (c.monitor.transport == "socket") {
+  if (c.monitor.transport == config::MonitorTransport::kSocket) {
     auto t = backends::UsbTmcSocketTransport::Connect(c.monitor.host, c.monitor.port);
     if (!t.ok()) return t.error();
     m.transport = std::move(t).value();
@@ -68,6 +70,22 @@ acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
 std::string ResponseJsonFor(const config::InstrumentConfig& c, const acquisition::Plan& plan) {
   const auto s = acquisition::ResponseSetupFor(PlanContextOf(c, {}), plan, plan.rectangle);
   return s ? s->ToJson() : "";
+}
+
+Result<acquisition::RunStart> RunStartFor(const config::InstrumentConfig& c,
+                                          const std::string& config_path) {
+  acquisition::RunStart start;
+  start.engine.linear_limit_adu = c.camera.linear_limit_adu;
+  start.engine.axes = c.axes;  // prices an adaptive run's moves against its budget
+  if (c.throughput) start.throughput = acquisition::ThroughputOf(*c.throughput);
+  std::ifstream file(config_path);
+  if (!file)
+    return Error{ErrorCode::kIo, config_path + ": cannot be read again to store with runs"};
+  std::stringstream text;
+  text << file.rdbuf();
+  start.config_text = text.str();
+  start.response_for = [c](const acquisition::Plan& p) { return ResponseJsonFor(c, p); };
+  return start;
 }
 
 Result<Instrument> OpenInstrument(const config::InstrumentConfig& c,

@@ -5,9 +5,11 @@
 #pragma once
 
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "acquisition/plan.h"
+#include "acquisition/run_start.h"
 #include "common/result.h"
 #include "config/instrument_config.h"
 #include "devices/camera.h"
@@ -40,6 +42,12 @@ acquisition::PlanContext PlanContextOf(const config::InstrumentConfig& c,
 // specimen's thickness. Empty when the config has no [bench] (the run is fitted with the point
 // model).
 std::string ResponseJsonFor(const config::InstrumentConfig& c, const acquisition::Plan& plan);
+
+// How runs start on this instrument (acquisition/run_start.h), for goniod and gonio-acquire alike:
+// the engine's linear limit and the axes' speeds from the config, its [throughput], its text as
+// read from `config_path` and ResponseJsonFor. Errors: the config file cannot be read again.
+Result<acquisition::RunStart> RunStartFor(const config::InstrumentConfig& c,
+                                          const std::string& config_path);
 
 struct Instrument {
   std::unique_ptr<devices::Camera> camera;

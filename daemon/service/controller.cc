@@ -389,7 +389,7 @@ Result<std::shared_ptr<const FrameView>> Controller::Snap(double exposure_s) {
     FrameView about;
     about.source = "snap";
     about.exposure_s = exposure_s;
-    kept = frames_.Put(f->image, o_.engine.linear_limit_adu, std::move(about));
+    kept = frames_.Put(f->image, o_.run_start.engine.linear_limit_adu, std::move(about));
   }
   {
     std::lock_guard lock(mu_);
@@ -587,57 +587,9 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   stop_reason_ = StopReason::kNone;
   if (!shutdown_) interrupt_ = false;  // a link watch's interrupt ended the last attempt
   link_lost_ = false;
-  if (!job.run) {
-    const auto points = acquisition::ExpandPoints(*plan, context_);
-    auto run = db_.NewRun(*plan, o_.config_text, points,
-                          o_.response_for ? o_.response_for(*plan) : std::string());
-    if (!run.ok()) {
-      FinishCurrent(JobState::kFailed, run.error().message);
-      SetState(State::kIdle, "");
-      return;
-    }
-    job.run = *run;
-    SaveJob(job);  // a restart finds the run through its job
-    // What it is expected to cost, kept beside what it will cost. An estimate that
-    // cannot be made does not stop the run. An adaptive plan's simulates its runs (a second or
-    // a few): made without the lock, so that status and the API answer meanwhile, in a state
-    // that says a job is in hand (idle here once let `gonioctl wait` return before the run).
-    SetState(State::kRunning, "estimating the run's time");
-    lock.unlock();
-    auto e = acquisition::EstimateRun(db_, *plan, points, context_.axes, o_.engine.linear_limit_adu,
-                                      o_.engine.max_ranging_tries, o_.throughput);
-    lock.lock();
-    // Not priced: no estimate is stored (nothing shows one), and the event says why.
-    if (e.ok() && e->priced) (void)db_.SetRunEstimate(*run, *e);
-    if (e.ok() && !e->priced) (void)db_.AddEvent(*run, "estimate", e->basis);
-    if (!plan->rectangle_reason.empty())
-      (void)db_.AddEvent(*run, "rectangle", plan->rectangle_reason);
-    if (stop_reason_ == StopReason::kShutdown) return;  // the run stays planned
-    if (stop_reason_ == StopReason::kAbort) {
-      FinishCurrent(JobState::kAborted, "aborted by the operator before its first point");
-      SetState(State::kIdle, "");
-      return;
-    }
-  }
+  if (!job.run && !StartRun(job, *plan, lock)) return;
   const std::int64_t run = *job.run;
-  if (job.cooler && !job.cooled) {
-    const CoolerWait w = *job.cooler;
-    job.cooled = true;  // once per process: a pause does not wait again, a restart does
-    SetState(State::kCooling, "cooling to " + std::to_string(w.setpoint_c) + " C");
-    lock.unlock();
-    const gonio::Status cooled = CoolDown(w);
-    lock.lock();
-    if (!cooled.ok()) {
-      const bool aborted = stop_reason_ == StopReason::kAbort;
-      const bool stopping = stop_reason_ == StopReason::kShutdown;
-      if (stopping) return;  // the run stays planned; the worker exits
-      FinishCurrent(aborted ? JobState::kAborted : JobState::kFailed,
-                    aborted ? "aborted while cooling" : cooled.error().message);
-      SetState(State::kIdle, "");
-      return;
-    }
-    (void)db_.AddEvent(run, "cooled", "sensor held at " + std::to_string(w.setpoint_c) + " C");
-  }
+  if (job.cooler && !job.cooled && !CoolFirst(job, run, lock)) return;
   job.state = JobState::kRunning;
   SaveJob(job);
   // A retry after a device fault runs (pause and abort act on it as on any run) and says so.
@@ -647,42 +599,54 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   const gonio::Status s = MeasureWatched(run, *plan);
   if (!s.ok()) SafeState();
   lock.lock();
-
   if (!current_) return;  // cannot happen: only the worker finishes a running job
+  if (!s.ok()) {
+    OnMeasureFailed(run, s);
+    return;
+  }
+  OnMeasureReturned(run, lock);
+}
+
+// The engine's run ended with an error: the link watch's suspension, or a device fault the
+// drivers' retries did not clear (suspended, or in fault once it lasts). mu_ held.
+void Controller::OnMeasureFailed(std::int64_t run, const gonio::Status& s) {
   const StopReason why = stop_reason_;
-  if (!s.ok() && why == StopReason::kSuspend && !fault_logged_.empty()) {
+  if (why == StopReason::kSuspend && !fault_logged_.empty()) {
     // The link watch suspended the run (and logged why) before the engine's own call failed.
     current_->state = JobState::kPaused;
     SaveJob(*current_);
     SetState(State::kSuspended, fault_logged_);
     return;
   }
-  if (!s.ok()) {
-    // A device fault the drivers' retries did not clear: the engine left the run paused. The
-    // worker retries each poll interval; only the outage's first failure (or a new one) is logged.
-    const std::string fault = s.error().code == ErrorCode::kDeviceFault
-                                  ? s.error().ToString()
-                                  : "device fault: " + s.error().ToString();
-    current_->state = JobState::kPaused;
-    SaveJob(*current_);
-    if (suspended_since_ == 0 || fault != fault_logged_) {
-      (void)db_.AddEvent(run, "suspend", fault);
-      events_.Publish("suspend", {{"run", run}, {"reason", fault}});
-      fault_logged_ = fault;
-    }
-    if (why == StopReason::kAbort) {
-      FinishCurrent(JobState::kAborted, "aborted by the operator (after a device fault)");
-      SetState(State::kIdle, "");
-      return;
-    }
-    if (suspended_since_ == 0) suspended_since_ = NowS();
-    if (NowS() - suspended_since_ > o_.suspenders.fault_give_up_s) {
-      SetState(State::kFault, "not cleared by retries: " + fault);
-    } else {
-      SetState(State::kSuspended, fault);
-    }
+  // A device fault the drivers' retries did not clear: the engine left the run paused. The
+  // worker retries each poll interval; only the outage's first failure (or a new one) is logged.
+  const std::string fault = s.error().code == ErrorCode::kDeviceFault
+                                ? s.error().ToString()
+                                : "device fault: " + s.error().ToString();
+  current_->state = JobState::kPaused;
+  SaveJob(*current_);
+  if (suspended_since_ == 0 || fault != fault_logged_) {
+    (void)db_.AddEvent(run, "suspend", fault);
+    events_.Publish("suspend", {{"run", run}, {"reason", fault}});
+    fault_logged_ = fault;
+  }
+  if (why == StopReason::kAbort) {
+    FinishCurrent(JobState::kAborted, "aborted by the operator (after a device fault)");
+    SetState(State::kIdle, "");
     return;
   }
+  if (suspended_since_ == 0) suspended_since_ = NowS();
+  if (NowS() - suspended_since_ > o_.suspenders.fault_give_up_s) {
+    SetState(State::kFault, "not cleared by retries: " + fault);
+  } else {
+    SetState(State::kSuspended, fault);
+  }
+}
+
+// The engine's run returned: done (its cost logged, its fit made), or stopped by a request after
+// a stored point. mu_ held, released for the fit.
+void Controller::OnMeasureReturned(std::int64_t run, std::unique_lock<std::mutex>& lock) {
+  const StopReason why = stop_reason_;
   auto info = db_.GetRun(run);
   if (info.ok() && info->status == acquisition::RunStatus::kDone) {
     if (const std::string cost = acquisition::DescribeExposureAgainstEstimate(*info); !cost.empty())
@@ -724,10 +688,64 @@ void Controller::RunCurrent(std::unique_lock<std::mutex>& lock) {
   }
 }
 
+// The job's run created (acquisition/run_start.h) and its estimate recorded; false when the job
+// ended or the worker stops instead. mu_ held, released for the estimate.
+bool Controller::StartRun(Job& job, const acquisition::Plan& plan,
+                          std::unique_lock<std::mutex>& lock) {
+  const auto points = acquisition::ExpandPoints(plan, context_);
+  auto run = acquisition::CreateRun(db_, o_.run_start, plan, points);
+  if (!run.ok()) {
+    FinishCurrent(JobState::kFailed, run.error().message);
+    SetState(State::kIdle, "");
+    return false;
+  }
+  job.run = *run;
+  SaveJob(job);  // a restart finds the run through its job
+  // What it is expected to cost, kept beside what it will cost. An estimate that
+  // cannot be made does not stop the run. An adaptive plan's simulates its runs (a second or
+  // a few): made without the lock, so that status and the API answer meanwhile, in a state
+  // that says a job is in hand (idle here once let `gonioctl wait` return before the run).
+  SetState(State::kRunning, "estimating the run's time");
+  lock.unlock();
+  auto e = acquisition::EstimateNewRun(db_, o_.run_start, plan, points);
+  lock.lock();
+  if (e.ok()) (void)acquisition::RecordEstimate(db_, *run, *e);
+  if (stop_reason_ == StopReason::kShutdown) return false;  // the run stays planned
+  if (stop_reason_ == StopReason::kAbort) {
+    FinishCurrent(JobState::kAborted, "aborted by the operator before its first point");
+    SetState(State::kIdle, "");
+    return false;
+  }
+  return true;
+}
+
+// The CCD cooled to the job's setpoint and held, once per process (a pause does not wait again,
+// a restart does); false when the job ended or the worker stops instead. mu_ held, released for
+// the wait.
+bool Controller::CoolFirst(Job& job, std::int64_t run, std::unique_lock<std::mutex>& lock) {
+  const CoolerWait w = *job.cooler;
+  job.cooled = true;  // once per process: a pause does not wait again, a restart does
+  SetState(State::kCooling, "cooling to " + std::to_string(w.setpoint_c) + " C");
+  lock.unlock();
+  const gonio::Status cooled = CoolDown(w);
+  lock.lock();
+  if (!cooled.ok()) {
+    const bool aborted = stop_reason_ == StopReason::kAbort;
+    const bool stopping = stop_reason_ == StopReason::kShutdown;
+    if (stopping) return false;  // the run stays planned; the worker exits
+    FinishCurrent(aborted ? JobState::kAborted : JobState::kFailed,
+                  aborted ? "aborted while cooling" : cooled.error().message);
+    SetState(State::kIdle, "");
+    return false;
+  }
+  (void)acquisition::RecordCooled(db_, run, w.setpoint_c);
+  return true;
+}
+
 // The engine on the run, with its frames shown and the devices' links watched beside it; without
 // mu_, on the worker thread.
 gonio::Status Controller::MeasureWatched(std::int64_t run, const acquisition::Plan& plan) {
-  acquisition::Engine engine(stages_, camera_, monitor_, db_, o_.engine);
+  acquisition::Engine engine(stages_, camera_, monitor_, db_, o_.run_start.engine);
   engine.InterruptOn(&interrupt_);
   const std::optional<acquisition::Rectangle> rectangle = plan.rectangle;
   engine.ShowFramesTo(
@@ -738,7 +756,7 @@ gonio::Status Controller::MeasureWatched(std::int64_t run, const acquisition::Pl
         about.point = p.index;
         about.exposure_s = t;
         about.rectangle = rectangle;
-        frames_.Put(image, o_.engine.linear_limit_adu, std::move(about));
+        frames_.Put(image, o_.run_start.engine.linear_limit_adu, std::move(about));
       });
   std::atomic<bool> engine_done{false};
   std::thread watch;

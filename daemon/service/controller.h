@@ -33,6 +33,7 @@
 
 #include "acquisition/engine.h"
 #include "acquisition/plan.h"
+#include "acquisition/run_start.h"
 #include "acquisition/storage.h"
 #include "daemon/schedule/schedule.h"
 #include "daemon/service/events.h"
@@ -79,15 +80,10 @@ struct Suspenders {
 };
 
 struct ControllerOptions {
-  acquisition::EngineOptions engine;
+  // How each run starts (acquisition/run_start.h): the engine's options, the config text and the
+  // responses stored with it, the configured [throughput] its estimate may be priced on.
+  acquisition::RunStart run_start;
   Suspenders suspenders;
-  std::string config_text;  // the instrument config, stored with each run
-  // What rebuilds a run's instrument responses (ResponseJsonFor), stored with each run; unset or
-  // empty: none.
-  std::function<std::string(const acquisition::Plan&)> response_for;
-  // The instrument config's [throughput]: prices a run when the database has no run of its own
-  // to price it on (acquisition::EstimateRun).
-  std::optional<acquisition::Throughput> throughput;
 };
 
 struct StatusReport {
@@ -125,9 +121,9 @@ class Controller {
   // Queues every run of a parsed schedule (the cooler wait before each entry's first run).
   Result<std::vector<Job>> Submit(const Schedule& schedule);
   const acquisition::PlanContext& context() const { return context_; }
-  const acquisition::EngineOptions& engine_options() const { return o_.engine; }
+  const acquisition::EngineOptions& engine_options() const { return o_.run_start.engine; }
   const std::optional<acquisition::Throughput>& configured_throughput() const {
-    return o_.throughput;
+    return o_.run_start.throughput;
   }
   std::vector<Job> Jobs() const;  // current first, then the queue in order, then finished ones
   Result<Job> GetJob(std::int64_t id) const;  // kNotFound
@@ -159,6 +155,10 @@ class Controller {
   enum class StopReason { kNone, kPause, kAbort, kSuspend, kShutdown };
   void Worker();
   void RunCurrent(std::unique_lock<std::mutex>& lock);
+  bool StartRun(Job& job, const acquisition::Plan& plan, std::unique_lock<std::mutex>& lock);
+  bool CoolFirst(Job& job, std::int64_t run, std::unique_lock<std::mutex>& lock);
+  void OnMeasureFailed(std::int64_t run, const gonio::Status& s);  // mu_ held
+  void OnMeasureReturned(std::int64_t run, std::unique_lock<std::mutex>& lock);
   void OnPoint(const acquisition::Progress& p);       // worker thread, from the engine
   std::optional<std::string> SuspendCondition();      // worker thread; the reason, when tripped
   void SetState(State s, const std::string& reason);  // mu_ held

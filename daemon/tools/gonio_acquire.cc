@@ -35,6 +35,7 @@
 
 #include "acquisition/engine.h"
 #include "acquisition/plan.h"
+#include "acquisition/run_start.h"
 #include "acquisition/storage.h"
 #include "config/instrument_config.h"
 #include "daemon/instrument/instrument.h"
@@ -179,11 +180,10 @@ Result<std::optional<RunInfo>> RunToResume(Storage& store, std::int64_t run_id,
 // at the specimen's expected lobe through the bench's throughput.
 Result<RunEstimate> PrintPlanSummary(Storage& store, const std::string& plan_path, const Plan& plan,
                                      const std::vector<PlannedPoint>& points,
-                                     const config::InstrumentConfig& cfg) {
+                                     const RunStart& start) {
   int skipped = 0;
   for (const auto& p : points) skipped += p.skipped;
-  auto estimate = EstimateRun(store, plan, points, cfg.axes, cfg.camera.linear_limit_adu,
-                              EngineOptions{}.max_ranging_tries);
+  auto estimate = EstimateNewRun(store, start, plan, points);
   if (!estimate.ok()) return estimate.error();
   std::cout << "plan " << plan_path << ": " << plan.specimen.name << ", " << points.size() - skipped
             << " points (" << skipped << " skipped), about " << Duration(estimate->total_s)
@@ -223,14 +223,11 @@ double SteadyS() {
 // Measures the run to its end, or until a signal pauses it (exit 3). A device fault pauses it and
 // it is resumed every retry.every_s; the outage is printed once (again if its message changes)
 // and its end once, when a point is stored.
-int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConfig& cfg,
-            std::int64_t run_id, const Plan& plan, const Retry& retry) {
+int Measure(Storage& store, daemon::Instrument& in, const RunStart& start, std::int64_t run_id,
+            const Plan& plan, const Retry& retry) {
   g_store = &store;
   g_run = run_id;
-  EngineOptions eo;
-  eo.linear_limit_adu = cfg.camera.linear_limit_adu;
-  eo.axes = cfg.axes;  // prices an adaptive run's moves against its budget
-  Engine engine(*in.stages, *in.camera, in.monitor.monitor.get(), store, eo);
+  Engine engine(*in.stages, *in.camera, in.monitor.monitor.get(), store, start.engine);
   engine.InterruptOn(&g_interrupt);
   double outage_since = -1;  // steady seconds; < 0: none
   std::string outage;        // the fault printed for it
@@ -299,100 +296,94 @@ int Measure(Storage& store, daemon::Instrument& in, const config::InstrumentConf
   return 3;
 }
 
-}  // namespace
+// What the command line asked for.
+struct Args {
+  std::string config_path, samples_path = "config/samples.toml", db_path, plan_path, out;
+  bool dry_run = false;
+  std::int64_t run_id = 0;
+  Retry retry;
+  std::optional<double> cool_c;
+  devices::TemperatureWait cool;
+  bool run = false, resume = false, export_csv = false, status = false;
+};
 
-int main(int argc, char** argv) {
+// Parses the command line into `a`; nullopt to go on, else the exit code (help, or 2).
+std::optional<int> ParseArgs(int argc, char** argv, Args& a) {
   CLI::App app{"Run a measurement plan on the instrument into SQLite"};
   app.require_subcommand(1);
-  std::string config_path, samples_path = "config/samples.toml", db_path;
-  app.add_option("-c,--config", config_path, "instrument config")->check(CLI::ExistingFile);
-  app.add_option("--samples", samples_path, "specimen catalogue")->check(CLI::ExistingFile);
-  app.add_option("--db", db_path, "SQLite database (created if missing)")->required();
-  std::string plan_path;
-  bool dry_run = false;
+  app.add_option("-c,--config", a.config_path, "instrument config")->check(CLI::ExistingFile);
+  app.add_option("--samples", a.samples_path, "specimen catalogue")->check(CLI::ExistingFile);
+  app.add_option("--db", a.db_path, "SQLite database (created if missing)")->required();
   CLI::App* run_cmd = app.add_subcommand("run", "measure a plan");
-  run_cmd->add_option("plan", plan_path)->required()->check(CLI::ExistingFile);
-  run_cmd->add_flag("--dry-run", dry_run, "validate, list what would happen, measure nothing");
-  std::int64_t run_id = 0;
+  run_cmd->add_option("plan", a.plan_path)->required()->check(CLI::ExistingFile);
+  run_cmd->add_flag("--dry-run", a.dry_run, "validate, list what would happen, measure nothing");
   CLI::App* resume_cmd = app.add_subcommand("resume", "continue an interrupted run");
-  resume_cmd->add_option("run", run_id, "run id (default: the latest unfinished)");
-  std::string out;
+  resume_cmd->add_option("run", a.run_id, "run id (default: the latest unfinished)");
   CLI::App* export_cmd = app.add_subcommand("export", "a run as the fitter's CSV");
-  export_cmd->add_option("run", run_id)->required();
-  export_cmd->add_option("--out", out)->required();
-  Retry retry;
-  app.add_option("--retry-s", retry.every_s,
+  export_cmd->add_option("run", a.run_id)->required();
+  export_cmd->add_option("--out", a.out)->required();
+  app.add_option("--retry-s", a.retry.every_s,
                  "after a device fault, resume the paused run this often (seconds)")
       ->check(CLI::Range(0.1, 3600.0));
-  app.add_option("--give-up-s", retry.give_up_s,
+  app.add_option("--give-up-s", a.retry.give_up_s,
                  "stop (exit 1, the run paused) when a device fault has not cleared in this "
                  "long; 0 stops at the first")
       ->check(CLI::Range(0.0, 7.0 * 24 * 3600));
-  std::optional<double> cool_c;
-  devices::TemperatureWait cool;
-  cool.poll_s = 0.1;
-  cool.cancel = &g_stop;
-  app.add_option("--cool", cool_c,
+  a.cool.poll_s = 0.1;
+  a.cool.cancel = &g_stop;
+  app.add_option("--cool", a.cool_c,
                  "run and resume: cool the CCD to this (deg C) and wait until it holds there "
                  "before measuring")
       ->check(CLI::Range(-100.0, 30.0));
-  app.add_option("--cool-hold", cool.hold_s, "seconds within 0.5 C that count as holding")
+  app.add_option("--cool-hold", a.cool.hold_s, "seconds within 0.5 C that count as holding")
       ->check(CLI::Range(0.0, 3600.0));
-  app.add_option("--cool-timeout", cool.timeout_s, "give up cooling after this long (seconds)")
+  app.add_option("--cool-timeout", a.cool.timeout_s, "give up cooling after this long (seconds)")
       ->check(CLI::Range(1.0, 24.0 * 3600));
   CLI::App* status_cmd = app.add_subcommand("status", "a run's state");
-  status_cmd->add_option("run", run_id)->required();
+  status_cmd->add_option("run", a.run_id)->required();
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e) == 0 ? 0 : 2;
   }
+  a.run = run_cmd->parsed();
+  a.resume = resume_cmd->parsed();
+  a.export_csv = export_cmd->parsed();
+  a.status = status_cmd->parsed();
+  return std::nullopt;
+}
 
-  // From here on a signal to a measurement pauses instead of killing: the run is stopped after
-  // its current point. Blocked before any thread starts (the camera's), so that every thread
-  // inherits the mask and only the watcher takes them. Export, status and a dry run keep the
-  // default: a signal ends them (they change nothing, or one transaction).
-  if ((*run_cmd || *resume_cmd) && !dry_run) {
-    sigset_t signals;
-    sigemptyset(&signals);
-    sigaddset(&signals, SIGINT);
-    sigaddset(&signals, SIGTERM);
-    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-    std::thread(WatchSignals, signals).detach();
-  }
-  auto db = Storage::Open(db_path);
-  if (!db.ok()) return Fail(db.error());
-  Storage& store = **db;
-  if (*export_cmd) {
-    Status s = store.ExportCsv(run_id, out);
-    if (!s.ok()) return Fail(s.error());
-    std::cout << "wrote " << out << "\n";
-    return 0;
-  }
-  if (*status_cmd) {
-    auto info = store.GetRun(run_id);
-    if (!info.ok()) return Fail(info.error());
-    std::cout << "run " << info->id << " (" << info->specimen << "): " << ToString(info->status)
-              << ", " << info->points_done << "/" << info->points_total - info->points_skipped
-              << " points, " << info->points_skipped << " skipped\n";
-    if (const std::string cost = DescribeExposureAgainstEstimate(*info); !cost.empty())
-      std::cout << cost << "\n";
-    return 0;
-  }
-  if (config_path.empty()) return Fail(InvalidArgument("run and resume need --config"));
-  auto cfg = config::LoadInstrumentConfig(config_path);
+// `status RUN`: the run's state and its cost against its estimate.
+int PrintStatus(Storage& store, std::int64_t run_id) {
+  auto info = store.GetRun(run_id);
+  if (!info.ok()) return Fail(info.error());
+  std::cout << "run " << info->id << " (" << info->specimen << "): " << ToString(info->status)
+            << ", " << info->points_done << "/" << info->points_total - info->points_skipped
+            << " points, " << info->points_skipped << " skipped\n";
+  if (const std::string cost = DescribeExposureAgainstEstimate(*info); !cost.empty())
+    std::cout << cost << "\n";
+  return 0;
+}
+
+// `run PLAN` and `resume [RUN]`: the plan checked against the instrument, the CCD cooled, the run
+// created (acquisition/run_start.h, as goniod creates it) or resumed, then measured.
+int RunOrResume(Storage& store, Args& a) {
+  if (a.config_path.empty()) return Fail(InvalidArgument("run and resume need --config"));
+  auto cfg = config::LoadInstrumentConfig(a.config_path);
   if (!cfg.ok()) return Fail(cfg.error());
-  auto specimens = LoadSpecimens(samples_path);
+  auto specimens = LoadSpecimens(a.samples_path);
   if (!specimens.ok()) return Fail(specimens.error());
+  auto start = daemon::RunStartFor(*cfg, a.config_path);
+  if (!start.ok()) return Fail(start.error());
 
   // The plan: a new one from its file, or a resumed run's own stored text.
-  std::string plan_file = plan_path, stored_plan;
-  if (*resume_cmd) {
-    auto resumed = RunToResume(store, run_id, db_path);
+  std::string plan_file = a.plan_path, stored_plan;
+  if (a.resume) {
+    auto resumed = RunToResume(store, a.run_id, a.db_path);
     if (!resumed.ok()) return Fail(resumed.error());
     if (!*resumed) return 0;
-    run_id = (*resumed)->id;
-    plan_file = "run " + std::to_string(run_id) + "'s stored plan";
+    a.run_id = (*resumed)->id;
+    plan_file = "run " + std::to_string(a.run_id) + "'s stored plan";
     stored_plan = (*resumed)->plan_text;
   }
   // The devices open before the plan is checked against the camera's image: nothing moves yet.
@@ -400,54 +391,71 @@ int main(int argc, char** argv) {
   daemon::Instrument in;
   const HoldExitFromTeardown hold_exit;
   in.context = daemon::PlanContextOf(*cfg, *specimens);
-  if (!dry_run) {
+  if (!a.dry_run) {
     auto opened = daemon::OpenInstrument(*cfg, *specimens);
     if (!opened.ok()) return Fail(opened.error());
     in = std::move(opened).value();
     g_stages = in.stages.get();
   }
   const PlanContext& ctx = in.context;
-  auto plan = *resume_cmd ? LoadPlanText(stored_plan, plan_file, ctx) : LoadPlan(plan_file, ctx);
+  auto plan = a.resume ? LoadPlanText(stored_plan, plan_file, ctx) : LoadPlan(plan_file, ctx);
   if (!plan.ok()) return Fail(plan.error());
   const auto points = ExpandPoints(*plan, ctx);
   std::optional<RunEstimate> estimate;
-  if (dry_run || *run_cmd) {
-    auto e = PrintPlanSummary(store, plan_path, *plan, points, *cfg);
+  if (a.run) {
+    auto e = PrintPlanSummary(store, a.plan_path, *plan, points, *start);
     if (!e.ok()) return Fail(e.error());
     estimate = *e;
   }
-  if (dry_run) return 0;
+  if (a.dry_run) return 0;
   // Cooled once the plan is known good and before a run is created: a camera that cannot cool,
   // or a cooling that times out or is interrupted, leaves nothing behind.
-  std::optional<double> held_c;
-  if (cool_c) {
-    cool.setpoint_c = *cool_c;
-    if (Status s = Cool(*in.camera, cool); !s.ok()) return Fail(s.error());
-    held_c = *cool_c;
+  if (a.cool_c) {
+    a.cool.setpoint_c = *a.cool_c;
+    if (Status s = Cool(*in.camera, a.cool); !s.ok()) return Fail(s.error());
   }
-  if (*run_cmd) {
-    std::ifstream file(config_path);
-    std::stringstream text;
-    text << file.rdbuf();
-    auto id = store.NewRun(*plan, text.str(), points, daemon::ResponseJsonFor(*cfg, *plan));
+  if (a.run) {
+    auto id = CreateRun(store, *start, *plan, points);
     if (!id.ok()) return Fail(id.error());
-    run_id = *id;
-    std::cout << "run " << run_id << " created in " << db_path << std::endl;
-    if (estimate)
-      if (Status st = store.SetRunEstimate(run_id, *estimate); !st.ok()) return Fail(st.error());
-    if (!plan->rectangle_reason.empty()) {
-      (void)store.AddEvent(run_id, "rectangle", plan->rectangle_reason);
-      std::cout << plan->rectangle_reason << std::endl;
-    }
+    a.run_id = *id;
+    std::cout << "run " << a.run_id << " created in " << a.db_path << std::endl;
+    if (Status st = RecordEstimate(store, a.run_id, *estimate); !st.ok()) return Fail(st.error());
+    if (!plan->rectangle_reason.empty()) std::cout << plan->rectangle_reason << std::endl;
   } else {
-    std::cout << "resuming run " << run_id << std::endl;
+    std::cout << "resuming run " << a.run_id << std::endl;
   }
-  if (held_c) {
-    std::ostringstream held;
-    held << "sensor held at " << *held_c << " C";
-    (void)store.AddEvent(run_id, "cooled", held.str());
-  }
-  const int code = Measure(store, in, *cfg, run_id, *plan, retry);
+  if (a.cool_c) (void)RecordCooled(store, a.run_id, *a.cool_c);
+  const int code = Measure(store, in, *start, a.run_id, *plan, a.retry);
   if (g_interrupt) ExitWithoutClosing(code);
   return code;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args a;
+  if (auto code = ParseArgs(argc, argv, a)) return *code;
+  // From here on a signal to a measurement pauses instead of killing: the run is stopped after
+  // its current point. Blocked before any thread starts (the camera's), so that every thread
+  // inherits the mask and only the watcher takes them. Export, status and a dry run keep the
+  // default: a signal ends them (they change nothing, or one transaction).
+  if ((a.run || a.resume) && !a.dry_run) {
+    sigset_t signals;
+    sigemptyset(&signals);
+    sigaddset(&signals, SIGINT);
+    sigaddset(&signals, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+    std::thread(WatchSignals, signals).detach();
+  }
+  auto db = Storage::Open(a.db_path);
+  if (!db.ok()) return Fail(db.error());
+  Storage& store = **db;
+  if (a.export_csv) {
+    Status s = store.ExportCsv(a.run_id, a.out);
+    if (!s.ok()) return Fail(s.error());
+    std::cout << "wrote " << a.out << "\n";
+    return 0;
+  }
+  if (a.status) return PrintStatus(store, a.run_id);
+  return RunOrResume(store, a);
 }

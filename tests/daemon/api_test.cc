@@ -78,9 +78,10 @@ class DaemonApi : public ::testing::Test {
     // the sample, a 512 x 512 sensor), for the rectangle's coverage.
     ctx.response = fitting::ResponseSetup{};
     ControllerOptions co;
-    co.engine.linear_limit_adu = 40000;
+    co.run_start.engine.linear_limit_adu = 40000;
+    co.run_start.engine.axes = inst.axes;  // as goniod's RunStartFor gives them
     co.suspenders = Suspend();
-    co.config_text = "# test";
+    co.run_start.config_text = "# test";
     controller =
         std::make_unique<Controller>(*inst.stages, *inst.camera, inst.meter, *store, ctx, co);
     const Status started = controller->Start(resume_interrupted);

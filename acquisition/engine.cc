@@ -126,51 +126,9 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
              : last_exposure_s_ > 0 ? last_exposure_s_
                                     : OnLadder(x.initial_s);
   t = std::clamp(t, x.min_s, x.max_s);
-  // Auto-ranging: the brightest rectangle pixel above dark goes to `target` of the linear range
-  // above dark; a pixel past `saturation` shortens the exposure, one below `floor` lengthens it.
-  std::optional<devices::Frame> first;
-  std::optional<double> first_reading;  // the monitor just before the accepted try
-  const DarkRecord* dark = nullptr;
-  for (int tries = 1;; ++tries) {
-    if (Status s = camera_.SetExposure(t); !s.ok()) return s.error();
-    // The dark first: the accepted try is the first averaged frame, and a dark taken after it
-    // would part it from the monitor's readings by the dark's frames (20 s exposures: a lamp
-    // drifting 12 %/h moved 0.3 % in between; EngineDriftingLamp under load).
-    auto d = DarkFor(t, plan);
-    if (!d.ok()) return d.error();
-    dark = *d;
-    // Read before each try, since the accepted one becomes the first averaged frame: its reading
-    // must come before it, as every other frame's does (see the frames' loop below).
-    if (monitor_ != nullptr) {
-      auto w = MonitorW();
-      if (!w.ok()) return w.error();
-      first_reading = *w;
-    }
-    auto f = camera_.Snap();
-    if (!f.ok()) return f.error();
-    ++stats_.ranging_frames;  // the accepted one is counted as averaged below
-    stats_.exposure_s += t;
-    RectAccumulator probe(rect, limit);
-    probe.Add(f->image);
-    const double range = limit - dark->mean;
-    const double peak = probe.Max() - dark->mean;
-    m.ranging_tries = tries;
-    const ExposureJudgement j = JudgeExposure(x, t, peak, range);
-    if (tries >= o_.max_ranging_tries || (!j.too_bright && !j.too_dim)) {
-      if (j.too_bright)
-        return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
-                                                  " saturates even at " + std::to_string(t) +
-                                                  " s (min_s " + std::to_string(x.min_s) + ")"};
-      if (peak < x.floor * range) m.flags |= kFlagAtMaxExposure;
-      first = std::move(f).value();
-      break;
-    }
-    if (j.too_bright && t <= x.min_s)
-      return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
-                                                " saturates at the shortest exposure " +
-                                                std::to_string(x.min_s) + " s"};
-    t = j.next_s;
-  }
+  auto ranged = AutoRange(p, plan, x, t, m);
+  if (!ranged.ok()) return ranged.error();
+  t = ranged->exposure_s;
   last_exposure_s_ = t;
   // The exposure the camera applied, not the one asked for: cameras set it in steps (the simulated
   // one in whole microseconds: the ladder's 3.162 ms came out 0.28 us short, 9e-5 of the peak's
@@ -195,9 +153,74 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
             RectAccumulator(rect, limit),
             RectAccumulator(rect, limit),
             background_frames > 0,
-            dark,
+            ranged->dark,
             {},
             false};
+  if (Status s = ExposeFrames(e, x, t, std::move(ranged->first), ranged->first_reading); !s.ok())
+    return s.error();
+  if (e.background)
+    if (Status s = ExposeBackground(e, background_frames, t); !s.ok()) return s.error();
+  auto temp = camera_.TemperatureC();
+  if (!temp.ok()) return temp.error();
+  e.m.temperature_c = *temp;
+  e.m.exposed_s = stats_.exposure_s - spent_before;
+  return e;
+}
+
+Result<Engine::Ranged> Engine::AutoRange(const PlannedPoint& p, const Plan& plan,
+                                         const ExposurePolicy& x, double t, Measurement& m) {
+  const double limit = o_.linear_limit_adu;
+  const cv::Rect rect(plan.rectangle.x, plan.rectangle.y, plan.rectangle.width,
+                      plan.rectangle.height);
+  Ranged r;
+  // Auto-ranging: the brightest rectangle pixel above dark goes to `target` of the linear range
+  // above dark; a pixel past `saturation` shortens the exposure, one below `floor` lengthens it.
+  for (int tries = 1;; ++tries) {
+    if (Status s = camera_.SetExposure(t); !s.ok()) return s.error();
+    // The dark first: the accepted try is the first averaged frame, and a dark taken after it
+    // would part it from the monitor's readings by the dark's frames (20 s exposures: a lamp
+    // drifting 12 %/h moved 0.3 % in between; EngineDriftingLamp under load).
+    auto d = DarkFor(t, plan);
+    if (!d.ok()) return d.error();
+    r.dark = *d;
+    // Read before each try, since the accepted one becomes the first averaged frame: its reading
+    // must come before it, as every other frame's does (see the frames' loop below).
+    if (monitor_ != nullptr) {
+      auto w = MonitorW();
+      if (!w.ok()) return w.error();
+      r.first_reading = *w;
+    }
+    auto f = camera_.Snap();
+    if (!f.ok()) return f.error();
+    ++stats_.ranging_frames;  // the accepted one is counted as averaged below
+    stats_.exposure_s += t;
+    RectAccumulator probe(rect, limit);
+    probe.Add(f->image);
+    const double range = limit - r.dark->mean;
+    const double peak = probe.Max() - r.dark->mean;
+    m.ranging_tries = tries;
+    const ExposureJudgement j = JudgeExposure(x, t, peak, range);
+    if (tries >= o_.max_ranging_tries || (!j.too_bright && !j.too_dim)) {
+      if (j.too_bright)
+        return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
+                                                  " saturates even at " + std::to_string(t) +
+                                                  " s (min_s " + std::to_string(x.min_s) + ")"};
+      if (peak < x.floor * range) m.flags |= kFlagAtMaxExposure;
+      r.first = std::move(f).value();
+      r.exposure_s = t;
+      return r;
+    }
+    if (j.too_bright && t <= x.min_s)
+      return Error{ErrorCode::kDeviceFault, "point " + std::to_string(p.index) +
+                                                " saturates at the shortest exposure " +
+                                                std::to_string(x.min_s) + " s"};
+    t = j.next_s;
+  }
+}
+
+Status Engine::ExposeFrames(Exposed& e, const ExposurePolicy& x, double t, devices::Frame first,
+                            std::optional<double> first_reading) {
+  const PlannedPoint& p = e.point;
   if (first_reading) e.monitor.push_back(*first_reading);
   for (int k = 0; k < x.frames; ++k) {
     if (Interrupted()) return Error{ErrorCode::kAborted, "interrupted between frames"};
@@ -209,9 +232,9 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
     ++stats_.frames;
     if (k == 0) {
       --stats_.ranging_frames;  // the last ranging frame is the first averaged one
-      e.acc.Add(first->image);
-      if (show_frame_) show_frame_(first->image, p, t);
-      first.reset();  // frames are not kept beyond their reduction
+      e.acc.Add(first.image);
+      if (show_frame_) show_frame_(first.image, p, t);
+      first.image.release();  // frames are not kept beyond their reduction
       continue;
     }
     stats_.exposure_s += t;
@@ -232,29 +255,27 @@ Result<Engine::Exposed> Engine::ExposePoint(const PlannedPoint& p, const Plan& p
     if (!w.ok()) return w.error();
     e.monitor.push_back(*w);
   }
-  // The background: the same exposure with the beam blocked ahead of the sample. Its last frame
-  // reads out while the stages (and the flag, out of the beam) move on.
-  if (e.background) {
-    if (Status s = BlockBeam(true); !s.ok()) return s.error();
-    for (int k = 0; k < background_frames; ++k) {
-      if (Interrupted()) return Error{ErrorCode::kAborted, "interrupted between frames"};
-      ++stats_.background_frames;
-      stats_.exposure_s += t;
-      if (k == background_frames - 1 && camera_.ReportsExposureEnd() && camera_.Expose().ok()) {
-        e.in_readout = true;
-        ++stats_.overlapped_readouts;
-        continue;
-      }
-      auto f = camera_.Snap();
-      if (!f.ok()) return f.error();
-      e.bg.Add(f->image);
+  return OkStatus();
+}
+
+// The same exposure with the beam blocked ahead of the sample. Its last frame reads out while the
+// stages (and the flag, out of the beam) move on.
+Status Engine::ExposeBackground(Exposed& e, int frames, double t) {
+  if (Status s = BlockBeam(true); !s.ok()) return s;
+  for (int k = 0; k < frames; ++k) {
+    if (Interrupted()) return Error{ErrorCode::kAborted, "interrupted between frames"};
+    ++stats_.background_frames;
+    stats_.exposure_s += t;
+    if (k == frames - 1 && camera_.ReportsExposureEnd() && camera_.Expose().ok()) {
+      e.in_readout = true;
+      ++stats_.overlapped_readouts;
+      continue;
     }
+    auto f = camera_.Snap();
+    if (!f.ok()) return f.error();
+    e.bg.Add(f->image);
   }
-  auto temp = camera_.TemperatureC();
-  if (!temp.ok()) return temp.error();
-  e.m.temperature_c = *temp;
-  e.m.exposed_s = stats_.exposure_s - spent_before;
-  return e;
+  return OkStatus();
 }
 
 Result<Measurement> Engine::Reduce(const Exposed& e) {
@@ -505,8 +526,10 @@ Status Engine::Run(std::int64_t run, const Plan& plan, const std::atomic<bool>& 
   return s;
 }
 
-Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
-                         const std::function<void(const Progress&)>& progress) {
+// The run's state taken up (its reference, the beam block, the stale-frame count), its pending
+// points read, the run marked running (a "resumed" event when some are done) and the shutter
+// opened; a camera that does not answer leaves it paused.
+Result<Engine::Begun> Engine::BeginRun(std::int64_t run, const Plan& plan) {
   run_ = run;
   beam_block_ = plan.beam_block;
   flag_open_ = false;  // not known: the run's first move takes it out of the beam
@@ -516,7 +539,7 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
   monitor_reference_ = info->monitor_reference_w;  // a resumed run keeps its reference
   auto pending = db_.Points(run, /*pending_only=*/true);
   if (!pending.ok()) return pending.error();
-  if (Status s = db_.SetRunStatus(run, RunStatus::kRunning); !s.ok()) return s;
+  if (Status s = db_.SetRunStatus(run, RunStatus::kRunning); !s.ok()) return s.error();
   if (info->points_done > 0)
     (void)db_.AddEvent(run, "resumed", std::to_string(info->points_done) + " points already done");
   // The shutter starts open (a previous run may have been killed during a dark). A camera that
@@ -525,30 +548,41 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
     (void)stages_.StopAll();
     (void)db_.AddEvent(run, "fault", s.error().ToString());
     (void)db_.SetRunStatus(run, RunStatus::kPaused);
-    return s;
+    return s.error();
   }
+  return Begun{std::move(info).value(), std::move(pending).value()};
+}
+
+// A device error at point `index`: the stages stopped, the run paused for a resume, and the
+// error named with its run and point (an interrupt's, as such).
+Status Engine::PauseOnFault(int index, const Error& err) {
+  (void)stages_.StopAll();
+  if (err.code == ErrorCode::kAborted && Interrupted()) {
+    (void)db_.AddEvent(run_, "paused",
+                       "interrupted during point " + std::to_string(index) +
+                           " (a stop that does not wait for it): its frames so far are "
+                           "discarded; it stays pending");
+    (void)db_.SetRunStatus(run_, RunStatus::kPaused);
+    return Error{ErrorCode::kAborted, "interrupted"};
+  }
+  (void)db_.AddEvent(run_, "fault", err.ToString());
+  (void)db_.SetRunStatus(run_, RunStatus::kPaused);
+  return Error{err.code, "run " + std::to_string(run_) + ", point " + std::to_string(index) + ": " +
+                             err.message};
+}
+
+Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<bool>& stop,
+                         const std::function<void(const Progress&)>& progress) {
+  auto begun = BeginRun(run, plan);
+  if (!begun.ok()) return begun.error();
+  auto& [info, pending] = *begun;
   Progress pr;
-  pr.total = info->points_total - info->points_skipped;
-  pr.done = info->points_done;
+  pr.total = info.points_total - info.points_skipped;
+  pr.done = info.points_done;
   const auto t0 = std::chrono::steady_clock::now();
   int measured_here = 0;
 
-  // A device error stops the stages and leaves the run paused for a resume.
-  auto fault = [&](int index, const Error& err) -> Status {
-    (void)stages_.StopAll();
-    if (err.code == ErrorCode::kAborted && Interrupted()) {
-      (void)db_.AddEvent(run, "paused",
-                         "interrupted during point " + std::to_string(index) +
-                             " (a stop that does not wait for it): its frames so far are "
-                             "discarded; it stays pending");
-      (void)db_.SetRunStatus(run, RunStatus::kPaused);
-      return Error{ErrorCode::kAborted, "interrupted"};
-    }
-    (void)db_.AddEvent(run, "fault", err.ToString());
-    (void)db_.SetRunStatus(run, RunStatus::kPaused);
-    return Error{err.code, "run " + std::to_string(run) + ", point " + std::to_string(index) +
-                               ": " + err.message};
-  };
+  auto fault = [this](int index, const Error& err) { return PauseOnFault(index, err); };
   // The previous point while its last frame reads out, and its completion on a second thread
   // (declared after it: the future's destructor waits for the thread before the point goes).
   std::optional<Exposed> tail;
@@ -589,7 +623,7 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
   };
   bool moved_back = false;
   for (;;) {  // an adaptive run measures what it chose, then chooses again
-    for (const PlannedPoint& p : *pending) {
+    for (const PlannedPoint& p : pending) {
       if (stop) {
         if (Status s = settle(&moved_back); !s.ok()) return s;
         (void)db_.AddEvent(run, "paused",
@@ -623,13 +657,14 @@ Status Engine::RunPoints(std::int64_t run, const Plan& plan, const std::atomic<b
         if (Status s = settle(&moved_back); !s.ok()) return s;
     }
     if (Status s = settle(&moved_back); !s.ok()) return s;
-    if (plan.strategy.kind != "adaptive") break;
+    if (plan.strategy.kind != StrategyKind::kAdaptive) break;
     auto chosen = ChooseMore(run, plan);
     if (!chosen.ok()) return chosen.error();  // storage: the run stays as it was, to resume
     if (*chosen == 0) break;
     pr.total += *chosen;
-    pending = db_.Points(run, /*pending_only=*/true);
-    if (!pending.ok()) return pending.error();
+    auto more = db_.Points(run, /*pending_only=*/true);
+    if (!more.ok()) return more.error();
+    pending = std::move(more).value();
   }
   open_flag();
   return db_.SetRunStatus(run, RunStatus::kDone);

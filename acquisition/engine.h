@@ -146,8 +146,33 @@ class Engine {
   Status MoveTo(const PlannedPoint& p, Measurement* m);
   // The beam block into the beam (true) or out of it; nothing without one.
   Status BlockBeam(bool blocked);
+  // What a run's measurement starts from (BeginRun).
+  struct Begun {
+    RunInfo info;
+    std::vector<PlannedPoint> pending;
+  };
+  Result<Begun> BeginRun(std::int64_t run, const Plan& plan);
+  Status PauseOnFault(int index, const Error& err);
   // Auto-ranges, darks and exposes the point's frames at the stages' present position.
   Result<Exposed> ExposePoint(const PlannedPoint& p, const Plan& plan, Measurement m);
+  // The accepted ranging try: its exposure, its frame (the first averaged one), the monitor read
+  // just before it and the dark for its exposure.
+  struct Ranged {
+    double exposure_s = 0;
+    devices::Frame first;
+    std::optional<double> first_reading;
+    const DarkRecord* dark = nullptr;
+  };
+  // From `t`, the exposure whose brightest rectangle pixel above dark lands within the policy's
+  // band (or the last try allowed); sets m's ranging tries and its at-max flag.
+  Result<Ranged> AutoRange(const PlannedPoint& p, const Plan& plan, const ExposurePolicy& x,
+                           double t, Measurement& m);
+  // The point's averaged frames into e (the first is the accepted try), the monitor read before
+  // each and after the last; the last left in readout where the camera can.
+  Status ExposeFrames(Exposed& e, const ExposurePolicy& x, double t, devices::Frame first,
+                      std::optional<double> first_reading);
+  // The background's frames with the beam blocked into e.bg; the last left in readout.
+  Status ExposeBackground(Exposed& e, int frames, double t);
   // Retrieves the last frame if it is in readout, then reduces and stores the point. A failed
   // retrieval leaves e.in_readout set (the caller retakes the frame); nothing is stored.
   Result<Measurement> Complete(Exposed& e);

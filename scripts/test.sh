@@ -2,7 +2,8 @@
 # The README's test command (within 20 minutes on 2 cores from a clean clone with the packages
 # present):
 #   1. installs what a fresh Debian 12 machine lacks (scripts/install-deps.sh)
-#   2. checks formatting against the committed .clang-format and the layers (cmake/layers.txt)
+#   2. checks formatting against the committed .clang-format, the layers (cmake/layers.txt) and
+#      the functions' length (scripts/check-functions.sh)
 #   3. builds everything, the benchmarks too, with warnings as errors, and runs the whole suite
 #      (build/), then the README's demo
 # Each part's time is printed. CI (.ci/run) runs this, then scripts/sanitize.sh: the unit tests
@@ -27,6 +28,7 @@ part_start=$SECONDS
 scripts/install-deps.sh
 scripts/check-format.sh
 scripts/check-layers.sh
+scripts/check-functions.sh
 part "installing and the checks"
 
 echo "== build (warnings are errors) =="

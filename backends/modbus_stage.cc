@@ -57,12 +57,13 @@ Result<std::unique_ptr<ModbusStageController>> ModbusStageController::Open(
   c->axes_ = std::move(axes);
   c->p_ = profile;
   const ModbusLink& l = c->link_;
-  if (l.kind == "tcp") {
+  if (l.kind == devices::ModbusTransport::kTcp) {
     c->ctx_ = modbus_new_tcp(l.host.c_str(), l.port);
-  } else if (l.kind == "rtu") {
+  } else if (l.kind == devices::ModbusTransport::kRtu) {
     c->ctx_ = modbus_new_rtu(l.device.c_str(), l.baud, l.parity, l.data_bits, l.stop_bits);
   } else {
-    return InvalidArgument("stage link kind '" + l.kind + "' is not tcp or rtu");
+    return InvalidArgument("stage link kind " + std::to_string(static_cast<int>(l.kind)) +
+                           " is not tcp or rtu");
   }
   if (c->ctx_ == nullptr)
     return InvalidArgument("stage link: " + std::string(modbus_strerror(errno)));
@@ -93,8 +94,9 @@ ModbusStageController::~ModbusStageController() {
 
 Status ModbusStageController::Connect() {
   if (modbus_connect(Ctx(ctx_)) != 0) {
-    const std::string where =
-        link_.kind == "tcp" ? link_.host + ":" + std::to_string(link_.port) : link_.device;
+    const std::string where = link_.kind == devices::ModbusTransport::kTcp
+                                  ? link_.host + ":" + std::to_string(link_.port)
+                                  : link_.device;
     return Error{ErrorCode::kNotConnected,
                  "stage controller at " + where + ": " + modbus_strerror(errno)};
   }
@@ -107,51 +109,69 @@ Result<const AxisSettings*> ModbusStageController::Find(const std::string& name)
   return InvalidArgument("no axis named '" + name + "' in the stage configuration");
 }
 
-// One request under the retry policy. `op` performs it and returns libmodbus's result.
+// One request under the retry policy. `op` performs it and returns libmodbus's result. Under mu_.
 template <typename Op>
-static Status WithRetries(void* ctx, const ModbusLink& link, const std::string& what, Op op,
-                          int* retried, std::atomic<int>* reconnects) {
+Status ModbusStageController::WithRetries(const std::string& what, Op op) {
+  struct Retrying {  // cleared however the request ends
+    std::atomic<bool>& flag;
+    ~Retrying() { flag = false; }
+  } clear{retrying_};
   int last = 0;
-  for (int attempt = 0; attempt <= link.retries; ++attempt) {
+  for (int attempt = 0; attempt <= link_.retries; ++attempt) {
     if (op() != -1) return OkStatus();
     last = errno;
     if (last > MODBUS_ENOBASE && last < EMBXGTAR + 1 && !Transient(last))
       return Error{ErrorCode::kProtocol, what + ": Modbus exception: " + modbus_strerror(last)};
-    if (attempt == link.retries) break;
-    ++*retried;
+    if (attempt == link_.retries) break;
+    ++retried_;
+    if (ConnectionLost(last)) {  // not a timeout: a slow reply a retry fixes is no loss
+      {
+        const std::lock_guard why(retrying_mu_);
+        retrying_why_ = what + ": " + modbus_strerror(last);
+      }
+      retrying_ = true;
+    }
     if (ConnectionLost(last)) {
-      modbus_close(Ctx(ctx));
+      modbus_close(Ctx(ctx_));
       std::this_thread::sleep_for(std::chrono::milliseconds(50 << attempt));
-      if (modbus_connect(Ctx(ctx)) == 0) ++*reconnects;
+      if (modbus_connect(Ctx(ctx_)) == 0) ++reconnects_;
     } else {
-      modbus_flush(Ctx(ctx));  // a late or corrupt reply must not answer the next request
+      modbus_flush(Ctx(ctx_));  // a late or corrupt reply must not answer the next request
     }
   }
   const ErrorCode code = last == ETIMEDOUT      ? ErrorCode::kTimeout
                          : ConnectionLost(last) ? ErrorCode::kNotConnected
                                                 : ErrorCode::kIo;
   return Error{code, what + ": " + modbus_strerror(last) + " (after " +
-                         std::to_string(link.retries) + " retries)"};
+                         std::to_string(link_.retries) + " retries)"};
+}
+
+Status ModbusStageController::CheckLink() {
+  if (axes_.empty()) return OkStatus();
+  std::unique_lock<std::recursive_timed_mutex> bus(mu_, std::defer_lock);
+  while (!bus.try_lock_for(std::chrono::milliseconds(20))) {
+    if (!retrying_) continue;
+    const std::lock_guard why(retrying_mu_);
+    return Error{ErrorCode::kNotConnected, retrying_why_ + " (a request is being retried)"};
+  }
+  auto s = ReadStatus(axes_.front().name);
+  return s.ok() ? OkStatus() : Status(s.error());
 }
 
 Status ModbusStageController::Read(const AxisSettings& a, std::uint16_t address, int count,
                                    std::uint16_t* out, const std::string& what) {
   std::lock_guard lock(mu_);
   modbus_set_slave(Ctx(ctx_), a.slave_id);
-  return WithRetries(
-      ctx_, link_, "axis '" + a.name + "': reading " + what,
-      [&] { return modbus_read_registers(Ctx(ctx_), address, count, out); }, &retried_,
-      &reconnects_);
+  return WithRetries("axis '" + a.name + "': reading " + what,
+                     [&] { return modbus_read_registers(Ctx(ctx_), address, count, out); });
 }
 
 Status ModbusStageController::Write(const AxisSettings& a, std::uint16_t address, int count,
                                     const std::uint16_t* values, const std::string& what) {
   std::lock_guard lock(mu_);
   modbus_set_slave(Ctx(ctx_), a.slave_id);
-  return WithRetries(
-      ctx_, link_, "axis '" + a.name + "': writing " + what,
-      [&] { return modbus_write_registers(Ctx(ctx_), address, count, values); }, &retried_,
-      &reconnects_);
+  return WithRetries("axis '" + a.name + "': writing " + what,
+                     [&] { return modbus_write_registers(Ctx(ctx_), address, count, values); });
 }
 
 Status ModbusStageController::Write32(const AxisSettings& a, std::uint16_t address, std::uint32_t v,
@@ -296,9 +316,9 @@ Status ModbusStageController::WaitReady(const AxisSettings& a, const char* befor
 }
 
 std::chrono::microseconds ModbusStageController::PollInterval() const {
-  const double s = link_.poll_interval_s > 0 ? link_.poll_interval_s
-                   : link_.kind == "rtu"     ? 0.02
-                                             : 0.005;
+  const double s = link_.poll_interval_s > 0                      ? link_.poll_interval_s
+                   : link_.kind == devices::ModbusTransport::kRtu ? 0.02
+                                                                  : 0.005;
   return std::chrono::microseconds(std::lround(s * 1e6));
 }
 

@@ -39,6 +39,10 @@ class ModbusStageController final : public StageController {
   Status StopAll() override;
   Result<AxisStatus> ReadStatus(const std::string& name) override;
   Status ResetAlarm(const std::string& name) override;
+  // A status read of the first axis, as StageController's; but a request already retrying after
+  // a lost connection (which holds the bus through its retries and reconnects, for seconds) is
+  // the answer at once: the link watch does not wait behind it to learn what it already shows.
+  Status CheckLink() override;
 
   // How many requests were retried, and reconnections made (for logs and tests).
   int retried() const { return retried_; }
@@ -80,11 +84,20 @@ class ModbusStageController final : public StageController {
   ModbusLink link_;
   std::vector<AxisSettings> axes_;
   StageRegisterProfile p_;
-  std::mutex mu_;        // one request on the bus at a time
-  void* ctx_ = nullptr;  // modbus_t*
+  // One request on the bus at a time; recursive, so that CheckLink holds it (taken with a
+  // timeout, watching for a retry meanwhile) through the status read's own requests.
+  std::recursive_timed_mutex mu_;
+  // Set while a request retries after a lost connection, with what it saw.
+  std::atomic<bool> retrying_{false};
+  std::mutex retrying_mu_;
+  std::string retrying_why_;  // under retrying_mu_
+  void* ctx_ = nullptr;       // modbus_t*
   int retried_ = 0;
   std::atomic<int> reconnects_{0};  // read by the engine's readout thread (Reconnections)
   std::map<std::string, AxisStatus> last_known_;  // under mu_
+
+  template <typename Op>
+  Status WithRetries(const std::string& what, Op op);
 };
 
 }  // namespace gonio::backends

@@ -3,6 +3,7 @@
 // bus faults (retried, reconnected) and device faults (errors at once, other axes stopped).
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
 #include <memory>
 #include <string>
@@ -38,7 +39,7 @@ class StageDriver : public ::testing::Test {
       auto s = sim::StageModbusRtuServer::Start({sample.get(), arm.get()}, {}, plan.get(), &clock);
       ASSERT_TRUE(s.ok()) << s.error().message;
       rtu_server = std::move(*s);
-      link.kind = "rtu";
+      link.kind = devices::ModbusTransport::kRtu;
       link.device = rtu_server->pty_path();
     } else {
       auto s = sim::StageModbusTcpServer::Start({sample.get(), arm.get()}, 0, plan.get(), &clock);
@@ -357,6 +358,50 @@ TEST(StageDriverOpen, AnAbsentControllerIsNamedInTheError) {
   ASSERT_FALSE(c.ok());
   EXPECT_EQ(c.error().code, ErrorCode::kNotConnected);
   EXPECT_NE(c.error().message.find("127.0.0.1:1"), std::string::npos) << c.error().message;
+}
+
+// The daemon's link watch calls CheckLink beside the engine's requests. A request retrying after
+// the connection was lost holds the bus through its retries and reconnects (here 3 of them, with
+// their back-off: a third of a second; over a second with the default timeouts): the check must
+// answer from that retry rather than queue behind it (CI once saw a stage server gone reported
+// after 2.3 s, by the engine's own failure, and not by the watch), and answer normally again once
+// the controller is back and idle.
+TEST_F(StageDriver, TheLinkCheckAnswersFromARetryInsteadOfWaitingBehindIt) {
+  Serve();
+  link.retries = 3;
+  auto c = Open();
+  ASSERT_TRUE(c);
+  ASSERT_TRUE(c->CheckLink().ok());
+  const int port = tcp_server->port();
+  tcp_server.reset();  // the controller goes away: connections are refused
+  std::atomic<bool> engine_done{false};
+  std::thread engine([&] {
+    (void)c->ReadStatus("arm");  // the engine's request, retrying
+    engine_done = true;
+  });
+  // Until that request is retrying (its first attempt has failed).
+  for (int i = 0; i < 400 && c->retried() == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  ASSERT_GT(c->retried(), 0) << "the request did not retry";
+  const Status check = c->CheckLink();
+  const bool answered_first = !engine_done;
+  engine.join();
+  ASSERT_FALSE(check.ok());
+  EXPECT_TRUE(answered_first) << "the check waited for the retrying request: "
+                              << check.error().message;
+  EXPECT_NE(check.error().message.find("a request is being retried"), std::string::npos)
+      << check.error().message;
+  EXPECT_NE(check.error().message.find("axis 'arm'"), std::string::npos) << check.error().message;
+  // Back on its port, and no request retrying: the check reads the status again.
+  auto s = sim::StageModbusTcpServer::Start({sample.get(), arm.get()}, port, plan.get(), &clock);
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  tcp_server = std::move(*s);
+  Status again = c->CheckLink();
+  for (int i = 0; i < 20 && !again.ok(); ++i) {  // its own reconnect may take a try or two
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    again = c->CheckLink();
+  }
+  EXPECT_TRUE(again.ok()) << again.error().message;
 }
 
 }  // namespace

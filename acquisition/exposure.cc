@@ -93,7 +93,7 @@ RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points
                        const std::vector<devices::AxisSettings>& axes, const ExposureHistory* seen,
                        const std::optional<Throughput>& bench, double linear_limit_adu,
                        int max_ranging_tries) {
-  const bool adaptive = plan.strategy.kind == "adaptive";
+  const bool adaptive = plan.strategy.kind == StrategyKind::kAdaptive;
   const std::optional<LobeForecast> forecast =
       ForecastFor(plan.specimen, bench, linear_limit_adu, max_ranging_tries);
   RunEstimate e;

@@ -106,9 +106,11 @@ Status StrategyFrom(Reader& r, const toml::table& root, Plan* p) {
   const toml::table* t = node->as_table();
   static const toml::table kNone;
   if (node->is_string()) {
-    s.kind = *node->value<std::string>();
-    if (s.kind != "uniform" && s.kind != "lobe" && s.kind != "adaptive")
-      return r.Fail(node, "strategy '" + s.kind + "' is not one of uniform, lobe, adaptive");
+    const std::string name = *node->value<std::string>();
+    const auto* known = std::find(kStrategyNames.begin(), kStrategyNames.end(), name);
+    if (known == kStrategyNames.end())
+      return r.Fail(node, "strategy '" + name + "' is not one of uniform, lobe, adaptive");
+    s.kind = static_cast<StrategyKind>(known - kStrategyNames.begin());
     t = &kNone;
   } else if (t == nullptr) {
     return r.Fail(node, "strategy must be a name (\"lobe\") or a [strategy] table");
@@ -116,7 +118,7 @@ Status StrategyFrom(Reader& r, const toml::table& root, Plan* p) {
   GONIO_TRY(r.Keys(*t, "strategy",
                    {"kind", "lobe_fraction", "tail_every", "coarse_every", "coarse_frames",
                     "coarse_max_s", "batch", "target_rel_sigma_alpha", "budget_s"}));
-  GONIO_TRY(r.String(*t, "kind", &s.kind, {"uniform", "lobe", "adaptive"}));
+  GONIO_TRY(r.Choice(*t, "kind", &s.kind, kStrategyNames));
   GONIO_TRY(r.Number(*t, "lobe_fraction", &s.lobe_fraction, 1e-6, 0.9));
   GONIO_TRY(r.Integer(*t, "tail_every", &s.tail_every, 1, 1000));
   GONIO_TRY(r.Integer(*t, "coarse_every", &s.coarse_every, 1, 1000));
@@ -126,27 +128,28 @@ Status StrategyFrom(Reader& r, const toml::table& root, Plan* p) {
   GONIO_TRY(r.Number(*t, "target_rel_sigma_alpha", &s.target_rel_sigma_alpha, 1e-6, 1));
   GONIO_TRY(r.Number(*t, "budget_s", &s.budget_s, 1, 1e8));
   const toml::node* kind = t->get("kind") != nullptr ? t->get("kind") : node;
-  if (s.kind != "uniform" && p->side != "transmission")
-    return r.Fail(kind, "strategy '" + s.kind +
+  const std::string kind_name = ToString(s.kind);
+  if (s.kind != StrategyKind::kUniform && p->side != Side::kTransmission)
+    return r.Fail(kind, "strategy '" + kind_name +
                             "' is for transmission plans (its model is the transmitted lobe)");
-  if (s.kind == "lobe" && !p->specimen.expected_alpha)
+  if (s.kind == StrategyKind::kLobe && !p->specimen.expected_alpha)
     return r.Fail(kind, "strategy 'lobe' needs the specimen's expected width: give '" +
                             p->specimen.name + "' an expected_alpha in the specimen catalogue");
-  if (s.kind == "adaptive" && t->get("budget_s") == nullptr)
+  if (s.kind == StrategyKind::kAdaptive && t->get("budget_s") == nullptr)
     return r.Fail(kind,
                   "strategy 'adaptive' needs budget_s, the bench seconds it may spend (a target "
                   "alone might never be reached)");
   for (const char* key : {"target_rel_sigma_alpha", "budget_s", "coarse_every", "coarse_frames",
                           "coarse_max_s", "batch"})
-    if (s.kind != "adaptive" && t->get(key) != nullptr)
+    if (s.kind != StrategyKind::kAdaptive && t->get(key) != nullptr)
       return r.Fail(t->get(key), std::string("'") + key +
-                                     "' is for kind = \"adaptive\" (this plan's kind is " + s.kind +
-                                     ")");
+                                     "' is for kind = \"adaptive\" (this plan's kind is " +
+                                     kind_name + ")");
   for (const char* key : {"lobe_fraction", "tail_every"})
-    if (s.kind != "lobe" && t->get(key) != nullptr)
-      return r.Fail(
-          t->get(key),
-          std::string("'") + key + "' is for kind = \"lobe\" (this plan's kind is " + s.kind + ")");
+    if (s.kind != StrategyKind::kLobe && t->get(key) != nullptr)
+      return r.Fail(t->get(key), std::string("'") + key +
+                                     "' is for kind = \"lobe\" (this plan's kind is " + kind_name +
+                                     ")");
   return OkStatus();
 }
 
@@ -185,14 +188,14 @@ Result<Plan> PlanFromTable(const toml::table& root, const std::string& path,
   GONIO_TRY(r.Number(*g, "view_to_deg", &p.view_to_deg, -89.9, 89.9));
   GONIO_TRY(r.Number(*g, "view_step_deg", &p.view_step_deg, 0.01, 90));
   GONIO_TRY(r.Number(*g, "arm_shadow_half_angle_deg", &p.arm_shadow_half_angle_deg, 0, 45));
-  GONIO_TRY(r.String(*g, "side", &p.side, {"transmission", "reflection"}));
-  GONIO_TRY(r.String(*g, "view_about", &p.view_about, {"normal", "refracted", "specular"}));
-  if ((p.view_about == "refracted" && p.side != "transmission") ||
-      (p.view_about == "specular" && p.side != "reflection"))
+  GONIO_TRY(r.Choice(*g, "side", &p.side, kSideNames));
+  GONIO_TRY(r.Choice(*g, "view_about", &p.view_about, kViewAboutNames));
+  if ((p.view_about == ViewAbout::kRefracted && p.side != Side::kTransmission) ||
+      (p.view_about == ViewAbout::kSpecular && p.side != Side::kReflection))
     return r.Fail(g->get("view_about"),
-                  "view_about '" + p.view_about + "' is for side = \"" +
-                      (p.side == "reflection" ? "transmission" : "reflection") +
-                      "\" (this plan's side is " + p.side + ")");
+                  std::string("view_about '") + ToString(p.view_about) + "' is for side = \"" +
+                      (p.side == Side::kReflection ? "transmission" : "reflection") +
+                      "\" (this plan's side is " + ToString(p.side) + ")");
   if (!(p.view_from_deg <= p.view_to_deg))
     return r.Fail(g->get("view_to_deg") ? g->get("view_to_deg") : g,
                   "view_to_deg must not be below view_from_deg");
@@ -363,7 +366,7 @@ Result<Plan> AutoRectangleFrom(Reader& r, const toml::table& rect, const toml::t
   if (!p.specimen.expected_alpha)
     return r.Fail(&rect, "[rectangle] auto needs the specimen's expected width: give '" +
                              p.specimen.name + "' an expected_alpha in the specimen catalogue");
-  if (p.side != "transmission")
+  if (p.side != Side::kTransmission)
     return r.Fail(&rect,
                   "[rectangle] auto is for transmission plans (the response is traced "
                   "through the hemisphere)");
@@ -463,10 +466,10 @@ std::vector<PlannedPoint> ExpandGrid(const Plan& plan, const PlanContext& contex
     for (double theta_l : plan.incidence_deg) {
       for (std::size_t j = 0; j < views.size(); ++j) {
         double theta_v = views[forward ? j : views.size() - 1 - j];
-        if (plan.view_about == "refracted") {  // Snell: sin(theta_t) = sin(theta_l) / eta
+        if (plan.view_about == ViewAbout::kRefracted) {  // Snell: sin(theta_t) = sin(theta_l) / eta
           const double theta_t = std::asin(std::sin(theta_l * M_PI / 180) / plan.specimen.eta);
           theta_v += -theta_t * 180 / M_PI;
-        } else if (plan.view_about == "specular") {
+        } else if (plan.view_about == ViewAbout::kSpecular) {
           theta_v += theta_l;
         }
         PlannedPoint p;
@@ -474,7 +477,7 @@ std::vector<PlannedPoint> ExpandGrid(const Plan& plan, const PlanContext& contex
         p.theta_l_deg = theta_l;
         p.theta_v_deg = theta_v;
         p.phi_deg = phi;
-        p.reflection = plan.side == "reflection";
+        p.reflection = plan.side == Side::kReflection;
         p.stage = p.reflection ? StageTargetsForReflection(theta_l, theta_v, phi)
                                : StageTargetsFor(theta_l, theta_v, phi);
         std::string why;

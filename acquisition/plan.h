@@ -6,6 +6,8 @@
 // kept with the reason they are skipped.
 #pragma once
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -73,6 +75,22 @@ struct AutoRectangle {
   std::optional<int> centre_x, centre_y;  // image pixels; default: the image's centre
 };
 
+// A plan's modes, parsed once from their names in the plan's file (the names are also what the
+// database and the API show: ToString).
+// Which side of the specimen the camera looks from: through the hemisphere (the bench's main use)
+// or on the light side, at the rough face.
+enum class Side { kTransmission, kReflection };
+// What a plan's view angles are measured from: theta_v itself; the straight-through view
+// (transmission, Snell at the specimen's eta); the mirror direction (reflection).
+enum class ViewAbout { kNormal, kRefracted, kSpecular };
+enum class StrategyKind { kUniform, kLobe, kAdaptive };
+inline constexpr std::array<const char*, 2> kSideNames = {"transmission", "reflection"};
+inline constexpr std::array<const char*, 3> kViewAboutNames = {"normal", "refracted", "specular"};
+inline constexpr std::array<const char*, 3> kStrategyNames = {"uniform", "lobe", "adaptive"};
+inline const char* ToString(Side s) { return kSideNames[static_cast<std::size_t>(s)]; }
+inline const char* ToString(ViewAbout v) { return kViewAboutNames[static_cast<std::size_t>(v)]; }
+inline const char* ToString(StrategyKind k) { return kStrategyNames[static_cast<std::size_t>(k)]; }
+
 // How a run spends its bench time ([strategy] in a plan; acquisition/strategy.h).
 //   uniform   every point of the grid, in order (the default);
 //   lobe      the grid's points where the specimen's expected lobe (Beckmann at the catalogue's
@@ -84,7 +102,7 @@ struct AutoRectangle {
 //             from the grid where they shrink the variance of alpha the most per bench second, at
 //             the provisional fit; it stops at `target_rel_sigma_alpha` or at `budget_s`.
 struct StrategyPolicy {
-  std::string kind = "uniform";
+  StrategyKind kind = StrategyKind::kUniform;
   double lobe_fraction = 0.01;
   int tail_every = 4;
   int coarse_every = 4;
@@ -115,14 +133,11 @@ struct Plan {
   Specimen specimen;
   std::vector<double> incidence_deg, azimuth_deg;
   double view_from_deg = -80, view_to_deg = 80, view_step_deg = 2;
-  // "transmission" (through the hemisphere, the bench's main use) or "reflection" (the camera
-  // on the light side, looking at the rough face).
-  std::string side = "transmission";
-  // "normal": view angles are theta_v; "refracted" (transmission): offsets from the
-  // straight-through view theta_v = -theta_t (Snell at the specimen's eta); "specular"
-  // (reflection): offsets from the mirror direction theta_v = theta_l. Either way each incidence
-  // sweeps its own lobe.
-  std::string view_about = "normal";
+  Side side = Side::kTransmission;
+  // kNormal: view angles are theta_v; kRefracted (transmission): offsets from the straight-through
+  // view theta_v = -theta_t (Snell at the specimen's eta); kSpecular (reflection): offsets from
+  // the mirror direction theta_v = theta_l. Either way each incidence sweeps its own lobe.
+  ViewAbout view_about = ViewAbout::kNormal;
   double arm_shadow_half_angle_deg = 4;
   ExposurePolicy exposure;
   DarkPolicy darks;

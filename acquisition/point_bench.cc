@@ -77,7 +77,7 @@ Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoin
     if (!p.skipped) seen.push_back(bench.Measure(p, first));
   SimulatedRun run;
   run.first_s = bench.spent_s();
-  if (plan.strategy.kind == "adaptive") {
+  if (plan.strategy.kind == StrategyKind::kAdaptive) {
     auto outcome =
         RunAdaptive(plan, points, seen,
                     [&](const std::vector<Choice>& batch) -> Result<std::vector<Observation>> {
@@ -178,7 +178,7 @@ Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedP
     exposures.push_back(run->spent_s - run->moved_s);
     if (run->reached_target) {
       ++f.reached;
-    } else if (plan.strategy.kind == "adaptive") {
+    } else if (plan.strategy.kind == StrategyKind::kAdaptive) {
       ++(run->stopped_at_budget ? f.at_budget : f.exhausted);
       short_rel.push_back(run->fit.width.sigma / run->fit.width.value);
     }

@@ -238,7 +238,8 @@ Status Storage::InsertPoint(std::int64_t run, const PlannedPoint& p) {
   pt.Bind(1, run).Bind(2, p.index).Bind(3, p.theta_l_deg).Bind(4, p.theta_v_deg);
   pt.Bind(5, p.phi_deg).Bind(6, p.stage.sample_deg).Bind(7, p.stage.arm_deg);
   pt.Bind(8, p.stage.azimuth_deg).Bind(9, std::string(p.skipped ? "skipped" : "pending"));
-  pt.Bind(10, p.reason).Bind(11, std::string(p.reflection ? "reflection" : "transmission"));
+  pt.Bind(10, p.reason)
+      .Bind(11, std::string(ToString(p.reflection ? Side::kReflection : Side::kTransmission)));
   pt.Bind(12, p.planned_exposure_s);
   pt.Bind(13, p.predicted_s > 0 ? std::optional<double>(p.predicted_s) : std::nullopt);
   if (pt.Step() != SQLITE_DONE) return pt.Fail("storing plan point " + std::to_string(p.index));
@@ -439,7 +440,7 @@ Result<std::vector<PlannedPoint>> Storage::Points(std::int64_t run, bool pending
     p.stage = {q.D(4), q.D(5), q.D(6)};
     p.skipped = q.T(7) == "skipped";
     p.reason = q.T(8);
-    p.reflection = q.T(9) == "reflection";
+    p.reflection = q.T(9) == ToString(Side::kReflection);
     if (!q.Null(10)) p.planned_exposure_s = q.D(10);
     p.predicted_s = q.Null(11) ? 0 : q.D(11);
     out.push_back(p);
@@ -550,7 +551,7 @@ Result<std::vector<MeasurementRow>> Storage::Measurements(std::int64_t run) {
     r.m.sigma = q.D(21);
     r.m.flags = static_cast<int>(q.I(22));
     r.m.ranging_tries = static_cast<int>(q.I(23));
-    r.point.reflection = q.T(24) == "reflection";
+    r.point.reflection = q.T(24) == ToString(Side::kReflection);
     // Points stored before the budget (schema 4) have their sigma as the statistical part.
     r.m.sigma_stat = q.Null(25) ? r.m.sigma : q.D(25);
     r.m.sigma_lamp = q.Null(26) ? 0 : q.D(26);
@@ -712,9 +713,11 @@ Status Storage::ExportCsv(std::int64_t run, std::ostream& out) {
         << r.m.frames << "," << r.m.rect_mean << "," << r.m.temperature_c << ",";
     // At the stream's 9 digits (std::to_string's 6 decimals kept 4 of a 1.7 mW reading's).
     if (r.m.monitor_w) out << *r.m.monitor_w;
-    out << "," << r.m.flags << "," << (r.point.reflection ? "reflection" : "transmission") << ","
-        << r.m.sample_read_deg << "," << r.m.arm_read_deg << "," << r.m.azimuth_read_deg << ","
-        << r.m.sigma_stat << "," << r.m.sigma_lamp << "," << r.m.sigma_monitor << ",";
+    out << "," << r.m.flags << ","
+        << ToString(r.point.reflection ? acquisition::Side::kReflection
+                                       : acquisition::Side::kTransmission)
+        << "," << r.m.sample_read_deg << "," << r.m.arm_read_deg << "," << r.m.azimuth_read_deg
+        << "," << r.m.sigma_stat << "," << r.m.sigma_lamp << "," << r.m.sigma_monitor << ",";
     // Empty where no background was measured (the fitter may then fit a floor).
     if (r.m.background)
       out << *r.m.background << "," << r.m.sigma_background;
@@ -740,7 +743,7 @@ Result<RunEstimate> EstimateRun(Storage& db, const Plan& plan,
   const ExposureHistory* seen = *history ? &**history : nullptr;
   std::optional<Throughput> bench;
   // Read when there is no history, or for an adaptive plan (whose forecast simulates its runs).
-  if (seen == nullptr || plan.strategy.kind == "adaptive") {
+  if (seen == nullptr || plan.strategy.kind == StrategyKind::kAdaptive) {
     auto throughput = db.LatestThroughput();
     if (!throughput.ok()) return throughput.error();
     bench = *throughput ? *throughput : configured;

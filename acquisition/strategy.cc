@@ -151,13 +151,13 @@ std::vector<const Observation*> WithSignal(const std::vector<Observation>& seen)
 
 void SelectByStrategy(const Plan& plan, std::vector<PlannedPoint>* grid) {
   const StrategyPolicy& s = plan.strategy;
-  if (s.kind == "uniform") return;
+  if (s.kind == StrategyKind::kUniform) return;
   // Groups: one view sweep per incidence and azimuth, in the grid's order.
   std::map<std::pair<double, double>, std::vector<PlannedPoint*>> sweeps;
   for (PlannedPoint& p : *grid)
     if (!p.skipped) sweeps[{p.phi_deg, p.theta_l_deg}].push_back(&p);
   for (auto& [key, points] : sweeps) {
-    if (s.kind == "adaptive") {
+    if (s.kind == StrategyKind::kAdaptive) {
       // By view angle, so that the coarse scan is the same on either sweep direction.
       std::vector<PlannedPoint*> by_view = points;
       std::sort(by_view.begin(), by_view.end(), [](const PlannedPoint* a, const PlannedPoint* b) {
@@ -185,7 +185,7 @@ void SelectByStrategy(const Plan& plan, std::vector<PlannedPoint>* grid) {
 
 ExposurePolicy CoarseExposure(const Plan& plan) {
   ExposurePolicy x = plan.exposure;
-  if (plan.strategy.kind != "adaptive") return x;
+  if (plan.strategy.kind != StrategyKind::kAdaptive) return x;
   x.frames = plan.strategy.coarse_frames;
   x.max_s = std::min(x.max_s, plan.strategy.coarse_max_s);
   x.min_s = std::min(x.min_s, x.max_s);

@@ -44,14 +44,14 @@ struct Row {
   int failed = 0, runs = 0;
 };
 
-Plan PlanFor(const Case& c, double step, const std::string& kind) {
+Plan PlanFor(const Case& c, double step, StrategyKind kind) {
   Plan p;
   p.specimen.name = c.name;
   p.specimen.eta = 1.51;
   p.specimen.expected_alpha = c.alpha;
   p.incidence_deg = {0, 30, 60, 80};
   p.azimuth_deg = {0};
-  p.view_about = "refracted";
+  p.view_about = ViewAbout::kRefracted;
   p.view_from_deg = -c.half_range_deg;
   p.view_to_deg = c.half_range_deg;
   p.view_step_deg = step;
@@ -66,7 +66,7 @@ Plan PlanFor(const Case& c, double step, const std::string& kind) {
 Row Measure(const Case& c, const Plan& plan, const std::string& setting, int repeats) {
   const PlanContext context;
   const std::vector<PlannedPoint> grid = ExpandGrid(plan, context);
-  Row row{c.name, plan.strategy.kind, setting};
+  Row row{c.name, ToString(plan.strategy.kind), setting};
   std::vector<double> times, errors, points, rel;
   int covered = 0;
   for (int r = 0; r < repeats; ++r) {
@@ -77,7 +77,8 @@ Row Measure(const Case& c, const Plan& plan, const std::string& setting, int rep
     ++row.runs;
     if (!run.ok() || run->fit.status == gonio::fitting::FitStatus::kFailed) {
       if (row.failed == 0)  // the first failure of the row, so that a pattern is seen
-        std::fprintf(stderr, "%s %s %s: %s\n", c.name, plan.strategy.kind.c_str(), setting.c_str(),
+        std::fprintf(stderr, "%s %s %s: %s\n", c.name, ToString(plan.strategy.kind),
+                     setting.c_str(),
                      run.ok() ? run->fit.message.c_str() : run.error().message.c_str());
       ++row.failed;
       continue;
@@ -122,7 +123,7 @@ ForecastRow Forecast(const Case& c, const Case& other, double target, int repeat
   truth.readout_s = 0;
   truth.alpha = other.alpha;
   truth.seed = 77;
-  const Plan first = PlanFor(other, 2, "uniform");
+  const Plan first = PlanFor(other, 2, StrategyKind::kUniform);
   PointBench bench(truth);
   std::vector<Observation> seen;
   for (const PlannedPoint& p : ExpandGrid(first, PlanContext{}))
@@ -140,7 +141,7 @@ ForecastRow Forecast(const Case& c, const Case& other, double target, int repeat
   t.adu_per_value = truth.electrons_per_s_per_value / truth.gain_e_per_adu;
   t.noise = *noise;
   const LobeForecast lobe{t, c.alpha, 1.51, truth.full_well_e / truth.gain_e_per_adu, 12};
-  Plan plan = PlanFor(c, c.steps_deg.back(), "adaptive");
+  Plan plan = PlanFor(c, c.steps_deg.back(), StrategyKind::kAdaptive);
   plan.strategy.budget_s = 1e6;
   plan.strategy.target_rel_sigma_alpha = target;
   const std::vector<PlannedPoint> grid = ExpandGrid(plan, PlanContext{});
@@ -183,13 +184,13 @@ int main(int argc, char** argv) {
     for (double step : c.steps_deg) {
       char setting[32];
       std::snprintf(setting, sizeof setting, "%g deg grid", step);
-      rows.push_back(Measure(c, PlanFor(c, step, "uniform"), setting, repeats));
+      rows.push_back(Measure(c, PlanFor(c, step, StrategyKind::kUniform), setting, repeats));
       reference_s = rows.back().time_median_s;
       std::fprintf(stderr, "%s %s uniform: %.0f s\n", c.name, setting, reference_s);
-      rows.push_back(Measure(c, PlanFor(c, step, "lobe"), setting, repeats));
+      rows.push_back(Measure(c, PlanFor(c, step, StrategyKind::kLobe), setting, repeats));
     }
     for (double fraction : {1.0 / 32, 1.0 / 16, 1.0 / 8, 1.0 / 4}) {
-      Plan p = PlanFor(c, c.steps_deg.back(), "adaptive");
+      Plan p = PlanFor(c, c.steps_deg.back(), StrategyKind::kAdaptive);
       p.strategy.budget_s = fraction * reference_s;
       char setting[64];
       std::snprintf(setting, sizeof setting, "budget 1/%.0f of the reference", 1 / fraction);

@@ -62,7 +62,7 @@ int main(int argc, char** argv) {
     }
     (*server)->SetLineRate(baud);
     devices::ModbusLink link;
-    link.kind = "rtu";
+    link.kind = devices::ModbusTransport::kRtu;
     link.device = (*server)->pty_path();
     link.baud = baud;
     link.poll_interval_s = poll;

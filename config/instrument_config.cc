@@ -149,11 +149,11 @@ Status ReadStages(Reader& r, const toml::table& t, InstrumentConfig& c) {
                    {"link", "host", "port", "device", "baud", "parity", "data_bits", "stop_bits",
                     "response_timeout_s", "retries", "poll_interval_s", "registers", "axis"}));
   devices::ModbusLink& l = c.stage_link;
-  GONIO_TRY(r.String(t, "link", &l.kind, {"rtu", "tcp"}));
+  GONIO_TRY(r.Choice(t, "link", &l.kind, devices::kModbusTransportNames));
   GONIO_TRY(r.Ipv4(t, "host", &l.host));
   GONIO_TRY(r.Integer(t, "port", &l.port, 1, 65535));
   GONIO_TRY(r.String(t, "device", &l.device));
-  if (l.kind == "rtu" && l.device.empty())
+  if (l.kind == devices::ModbusTransport::kRtu && l.device.empty())
     return r.Fail(t.get("link"), "an RTU link needs 'device' (the serial port)");
   GONIO_TRY(r.Integer(t, "baud", &l.baud, 1200, 4'000'000));
   std::string parity = "even";
@@ -177,7 +177,7 @@ Status ReadMonitor(Reader& r, const toml::table& t, MonitorConfig& m) {
                    {"enabled", "transport", "vendor_id", "product_id", "serial", "host", "port",
                     "wavelength_nm", "averaging", "timeout_ms"}));
   GONIO_TRY(r.Bool(t, "enabled", &m.enabled));
-  GONIO_TRY(r.String(t, "transport", &m.transport, {"socket", "usb"}));
+  GONIO_TRY(r.Choice(t, "transport", &m.transport, kMonitorTransportNames));
   GONIO_TRY(r.Integer(t, "vendor_id", &m.usb.vendor_id, 0, 0xFFFF));
   GONIO_TRY(r.Integer(t, "product_id", &m.usb.product_id, 0, 0xFFFF));
   GONIO_TRY(r.String(t, "serial", &m.usb.serial));

@@ -8,6 +8,7 @@
 // describes is the daemon's (daemon/instrument/instrument.h), the one place that names backends.
 #pragma once
 
+#include <array>
 #include <optional>
 #include <string>
 #include <vector>
@@ -20,9 +21,14 @@
 
 namespace gonio::config {
 
+// How the source monitor is reached: USBTMC over libusb, or the same framing over a socket
+// (gonio-sim's meter).
+enum class MonitorTransport { kUsb, kSocket };
+inline constexpr std::array<const char*, 2> kMonitorTransportNames = {"usb", "socket"};
+
 struct MonitorConfig {
   bool enabled = false;
-  std::string transport = "usb";  // usb | socket (gonio-sim's meter)
+  MonitorTransport transport = MonitorTransport::kUsb;
   devices::UsbDeviceId usb;
   std::string host = "127.0.0.1";
   int port = 5021;

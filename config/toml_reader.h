@@ -8,6 +8,8 @@
 
 #include <toml++/toml.h>
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
 #include <set>
 #include <sstream>
@@ -81,6 +83,20 @@ class Reader {
       return Fail(n, s.str());
     }
     *out = *v;
+    return OkStatus();
+  }
+
+  // A string naming one of `names` into *out: names[i] is the enum's value i. A name not among
+  // them fails as String's allowed list does, naming them.
+  template <typename E, std::size_t N>
+  Status Choice(const toml::table& t, const char* key, E* out,
+                const std::array<const char*, N>& names) {
+    std::string name = names[static_cast<std::size_t>(*out)];
+    if (Status s = String(t, key, &name, std::set<std::string>(names.begin(), names.end()));
+        !s.ok())
+      return s;
+    for (std::size_t i = 0; i < N; ++i)
+      if (name == names[i]) *out = static_cast<E>(i);
     return OkStatus();
   }
 

@@ -5,6 +5,8 @@
 // retried; transient bus faults are retried by the backend within a bound.
 #pragma once
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -59,9 +61,16 @@ struct StageRegisterProfile {
   double ready_timeout_s = 2.0;
 };
 
+// The bus a Modbus stage controller is on (Modbus over TCP, or RTU on a serial line).
+enum class ModbusTransport { kTcp, kRtu };
+inline constexpr std::array<const char*, 2> kModbusTransportNames = {"tcp", "rtu"};
+inline const char* ToString(ModbusTransport t) {
+  return kModbusTransportNames[static_cast<std::size_t>(t)];
+}
+
 struct ModbusLink {
-  // "tcp": host (numeric) and port; "rtu": device and line settings.
-  std::string kind = "tcp";
+  // kTcp: host (numeric) and port; kRtu: device and line settings.
+  ModbusTransport kind = ModbusTransport::kTcp;
   std::string host = "127.0.0.1";
   int port = 502;
   std::string device;

@@ -78,7 +78,7 @@ config::InstrumentConfig Instrument::ClientConfig() const {
   config::InstrumentConfig c;
   c.camera_enabled = camera_ != nullptr;
   c.camera.address = config_.camera.address;
-  c.stage_link.kind = "tcp";
+  c.stage_link.kind = devices::ModbusTransport::kTcp;
   c.stage_link.host = "127.0.0.1";
   c.stage_link.port = modbus_port_;
   for (std::size_t k = 0; k < config_.axes.size(); ++k) {
@@ -97,7 +97,7 @@ config::InstrumentConfig Instrument::ClientConfig() const {
     if (a.role == "beam_block") c.beam_block = devices::BeamBlockSettings{0, 90};
   }
   c.monitor.enabled = monitor_ != nullptr;
-  c.monitor.transport = "socket";
+  c.monitor.transport = config::MonitorTransport::kSocket;
   c.monitor.host = "127.0.0.1";
   if (monitor_) c.monitor.port = monitor_->port();
   return c;

@@ -556,7 +556,8 @@ void ApiServer::RouteRuns() {
            {"theta_l_deg", r.point.theta_l_deg},
            {"theta_v_deg", r.point.theta_v_deg},
            {"phi_deg", r.point.phi_deg},
-           {"side", r.point.reflection ? "reflection" : "transmission"},
+           {"side", ToString(r.point.reflection ? acquisition::Side::kReflection
+                                                : acquisition::Side::kTransmission)},
            {"value", r.m.value},
            {"sigma", r.m.sigma},
            {"exposure_s", r.m.exposure_s},

@@ -106,7 +106,7 @@ Result<Schedule> ParseSchedule(std::string_view text, const std::string& name,
         if (!v || !fitting::ParseFamily(*v))
           return r.Fail(&m, "unknown model in 'fit' (known: beckmann, ggx, phong, sun2008)");
         // Refused here, not hours later when the run is fitted.
-        if (*v == "sun2008" && plan->side == "reflection")
+        if (*v == "sun2008" && plan->side == acquisition::Side::kReflection)
           return r.Fail(&m, "'fit' names sun2008, a transmission model, but plan '" + e.plan_name +
                                 "' measures reflection");
         e.fit.push_back(*v);

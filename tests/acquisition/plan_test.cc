@@ -107,7 +107,7 @@ TEST(Plan, PointsRunASerpentineAndUnreachableOnesAreSkipped) {
 TEST(Plan, RefractedViewsCentreEachIncidencesLobe) {
   auto p = LoadPlan(kData + "/plans/good.toml", Context());
   ASSERT_TRUE(p.ok());
-  p->view_about = "refracted";
+  p->view_about = ViewAbout::kRefracted;
   const auto points = ExpandPoints(*p, Context());
   // theta_l 30 in glass of eta 1.51: theta_t = 19.34 deg, so offset 0 is theta_v = -19.34.
   EXPECT_NEAR(points[7].theta_v_deg, -19.3372, 1e-3);

@@ -88,7 +88,7 @@ TEST(Strategy, BadStrategiesAreRefusedWithFileAndLine) {
                                     "target_rel_sigma_alpha = 0.002\nbatch = 6\n"),
                            "s.toml", Context());
   ASSERT_TRUE(good.ok()) << good.error().message;
-  EXPECT_EQ(good->strategy.kind, "adaptive");
+  EXPECT_EQ(good->strategy.kind, StrategyKind::kAdaptive);
   EXPECT_EQ(good->strategy.batch, 6);
   EXPECT_DOUBLE_EQ(good->strategy.budget_s, 7200);
   EXPECT_DOUBLE_EQ(good->strategy.target_rel_sigma_alpha, 0.002);
@@ -143,7 +143,7 @@ TEST(Strategy, AnAdaptivePlanStartsWithItsCoarseScanAndKeepsTheRestAsCandidates)
   EXPECT_EQ(candidates, 2 * 64);
   auto example = LoadPlan(GONIO_SOURCE_DIR "/config/plan_adaptive.toml", Context());
   ASSERT_TRUE(example.ok()) << example.error().message;
-  EXPECT_EQ(example->strategy.kind, "adaptive");
+  EXPECT_EQ(example->strategy.kind, StrategyKind::kAdaptive);
   ExposurePolicy coarse = CoarseExposure(*plan);
   EXPECT_EQ(coarse.frames, 1);
   EXPECT_DOUBLE_EQ(coarse.max_s, 1);
@@ -308,14 +308,14 @@ TEST(Strategy, TheNextPointIsTheOneThatShrinksAlphasVarianceMostPerSecond) {
   EXPECT_NE(chosen[0].Reason().find("sigma(alpha)/alpha"), std::string::npos);
 }
 
-Plan PointBenchPlan(double step, const std::string& kind) {
+Plan PointBenchPlan(double step, StrategyKind kind) {
   Plan p;
   p.specimen.name = "ground-glass-G1";
   p.specimen.eta = 1.51;
   p.specimen.expected_alpha = 0.344;
   p.incidence_deg = {0, 30, 60};
   p.azimuth_deg = {0};
-  p.view_about = "refracted";
+  p.view_about = ViewAbout::kRefracted;
   p.view_from_deg = -40;
   p.view_to_deg = 40;
   p.view_step_deg = step;
@@ -334,7 +334,7 @@ double Median(std::vector<double> v) {
 // three specimens over 20 runs): adaptive at a quarter of the uniform 1 deg grid's bench time
 // gets a sigma(alpha) at least as small, and its 2 sigma intervals cover the truth.
 TEST(Strategy, AdaptiveMatchesTheUniformGridAtAQuarterOfItsBenchTime) {
-  const Plan uniform = PointBenchPlan(1, "uniform");
+  const Plan uniform = PointBenchPlan(1, StrategyKind::kUniform);
   const std::vector<PlannedPoint> grid = ExpandGrid(uniform, PlanContext{});
   std::vector<double> uniform_s, uniform_rel, adaptive_s, adaptive_rel;
   int covered = 0, runs = 10;
@@ -346,7 +346,7 @@ TEST(Strategy, AdaptiveMatchesTheUniformGridAtAQuarterOfItsBenchTime) {
     uniform_s.push_back(u->spent_s);
     uniform_rel.push_back(u->fit.width.sigma / u->fit.width.value);
   }
-  Plan adaptive = PointBenchPlan(1, "adaptive");
+  Plan adaptive = PointBenchPlan(1, StrategyKind::kAdaptive);
   adaptive.strategy.budget_s = Median(uniform_s) / 4;
   for (int r = 0; r < runs; ++r) {
     PointBenchOptions o;
@@ -365,7 +365,7 @@ TEST(Strategy, AdaptiveMatchesTheUniformGridAtAQuarterOfItsBenchTime) {
 }
 
 TEST(Strategy, AnAdaptiveRunStopsAtItsTargetOrAtItsBudgetAndSaysWhich) {
-  const Plan base = PointBenchPlan(1, "adaptive");
+  const Plan base = PointBenchPlan(1, StrategyKind::kAdaptive);
   const std::vector<PlannedPoint> grid = ExpandGrid(base, PlanContext{});
   // A target it cannot reach: the budget stops it, and says the target was not reached.
   Plan unreachable = base;
@@ -390,7 +390,7 @@ TEST(Strategy, AnAdaptiveRunStopsAtItsTargetOrAtItsBudgetAndSaysWhich) {
 // A batch ends at the first choice predicted to reach the target (holding at least `batch`):
 // the run spends nothing past what its target needs, by its own prediction.
 TEST(Strategy, ABatchEndsWhereItsPredictionReachesTheTarget) {
-  Plan plan = PointBenchPlan(1, "adaptive");
+  Plan plan = PointBenchPlan(1, StrategyKind::kAdaptive);
   plan.strategy.budget_s = 1e6;
   plan.strategy.target_rel_sigma_alpha = 2e-5;
   std::vector<PlannedPoint> points = ExpandGrid(plan, PlanContext{});
@@ -431,7 +431,7 @@ TEST(Strategy, ABatchEndsWhereItsPredictionReachesTheTarget) {
 // and a run that waited for it to converge went on to its budget. Its sigma is inflated by
 // sqrt(chi2/dof), so the run stops at the target on it and says the fit was poor.
 TEST(Strategy, AnAdaptiveRunStopsAtItsTargetWhenThePointModelFitsPoorly) {
-  Plan plan = PointBenchPlan(1, "adaptive");
+  Plan plan = PointBenchPlan(1, StrategyKind::kAdaptive);
   plan.strategy.budget_s = 2e5;
   plan.strategy.target_rel_sigma_alpha = 5e-5;
   std::vector<PlannedPoint> points = ExpandGrid(plan, PlanContext{});
@@ -469,7 +469,7 @@ TEST(Strategy, AnAdaptiveRunStopsAtItsTargetWhenThePointModelFitsPoorly) {
 // Before the run, the forecast says how many simulated runs fall short of the target, why, how far,
 // and what would help: a tight budget needs more time, a coarse grid more candidates.
 TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
-  Plan tight = PointBenchPlan(2, "adaptive");
+  Plan tight = PointBenchPlan(2, StrategyKind::kAdaptive);
   tight.strategy.budget_s = 1500;
   tight.strategy.target_rel_sigma_alpha = 1e-9;
   auto a = ForecastAdaptive(tight, ExpandGrid(tight, PlanContext{}), PointBenchOptions{}, 3);
@@ -485,7 +485,7 @@ TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
 
   // A 20 deg grid with time to spare: every candidate is taken again and again until the planner
   // has nothing left that adds to alpha. More time would not help; a finer grid might.
-  Plan coarse = PointBenchPlan(20, "adaptive");
+  Plan coarse = PointBenchPlan(20, StrategyKind::kAdaptive);
   coarse.strategy.budget_s = 1e8;
   coarse.strategy.target_rel_sigma_alpha = 1e-9;
   auto b = ForecastAdaptive(coarse, ExpandGrid(coarse, PlanContext{}), PointBenchOptions{}, 2);
@@ -498,7 +498,7 @@ TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
   EXPECT_NE(b->Describe().find("a finer view_step_deg"), std::string::npos) << b->Describe();
 
   // A target the runs reach: nothing to warn of.
-  Plan reachable = PointBenchPlan(2, "adaptive");
+  Plan reachable = PointBenchPlan(2, StrategyKind::kAdaptive);
   reachable.strategy.budget_s = 1e6;
   reachable.strategy.target_rel_sigma_alpha = 1e-4;
   auto c =
@@ -518,7 +518,7 @@ TEST(Strategy, AnAdaptivePlansForecastFromAnotherSpecimensRunPredictsItsTime) {
   truth.readout_s = 0;  // the stored bench time has none
   truth.seed = 7;
   truth.alpha = 0.493;
-  Plan etched = PointBenchPlan(2, "uniform");
+  Plan etched = PointBenchPlan(2, StrategyKind::kUniform);
   etched.exposure.frames = 4;
   PointBench first(truth);
   std::vector<Observation> seen;
@@ -539,7 +539,7 @@ TEST(Strategy, AnAdaptivePlansForecastFromAnotherSpecimensRunPredictsItsTime) {
   bench.noise = *noise;
   const LobeForecast lobe{bench, 0.344, 1.51, truth.full_well_e / truth.gain_e_per_adu, 12};
 
-  Plan plan = PointBenchPlan(1, "adaptive");
+  Plan plan = PointBenchPlan(1, StrategyKind::kAdaptive);
   plan.exposure.frames = 4;
   plan.strategy.budget_s = 20000;
   plan.strategy.target_rel_sigma_alpha = 2e-5;

@@ -322,7 +322,7 @@ TEST_F(PowerMeter, OpeningTheMonitorStartsCleanAfterAClientThatDiedMidQuery) {
   leave_stale();
   config::InstrumentConfig c;
   c.monitor.enabled = true;
-  c.monitor.transport = "socket";
+  c.monitor.transport = config::MonitorTransport::kSocket;
   c.monitor.port = (*server)->port();
   c.monitor.wavelength_nm = 700;
   c.monitor.averaging = 10;

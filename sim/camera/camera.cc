@@ -115,9 +115,10 @@ Result<std::unique_ptr<SimulatedCamera>> SimulatedCamera::StartGigE(
   }
   ArvFakeCamera* fake = arv_gv_fake_camera_get_fake_camera(cam->gv_);
   cam->fake_ = fake;
-  WriteString(fake, 0x48, 32, "gonio");
-  WriteString(fake, 0x68, 32, "CooledCCD (simulated)");
-  WriteString(fake, 0x88, 32, "gonio-sim 1");
+  WriteString(fake, camera_reg::kManufacturerName, camera_reg::kBootstrapStringBytes, "gonio");
+  WriteString(fake, camera_reg::kModelName, camera_reg::kBootstrapStringBytes,
+              "CooledCCD (simulated)");
+  WriteString(fake, camera_reg::kDeviceVersion, camera_reg::kBootstrapStringBytes, "gonio-sim 1");
   const ImageRegion& s = o.sensor;
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_SENSOR_WIDTH, s.sensor_width);
   cam->SetReg(ARV_FAKE_CAMERA_REGISTER_SENSOR_HEIGHT, s.sensor_height);

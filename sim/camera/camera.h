@@ -16,6 +16,7 @@
 #pragma once
 
 #include <atomic>
+#include <cstddef>
 #include <cstdint>
 #include <fstream>
 #include <functional>
@@ -68,6 +69,12 @@ inline constexpr std::uint32_t kTimestampTickFrequencyLow = 0x0940;
 inline constexpr std::uint32_t kTimestampControl = 0x0944;
 inline constexpr std::uint32_t kTimestampValueHigh = 0x0948;
 inline constexpr std::uint32_t kTimestampValueLow = 0x094C;
+// GigE Vision bootstrap strings (GigE Vision 2.0, section 28, table 28-1): 32 bytes each,
+// NUL-padded; a client's device list shows them.
+inline constexpr std::uint32_t kManufacturerName = 0x0048;
+inline constexpr std::uint32_t kModelName = 0x0068;
+inline constexpr std::uint32_t kDeviceVersion = 0x0088;
+inline constexpr std::size_t kBootstrapStringBytes = 32;
 }  // namespace camera_reg
 
 // The genicam file installed beside the sources (compiled-in path; overridable).

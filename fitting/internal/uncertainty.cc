@@ -1,6 +1,7 @@
 #include "fitting/internal/uncertainty.h"
 
-#include <ceres/ceres.h>
+#include <ceres/crs_matrix.h>
+#include <ceres/problem.h>
 
 #include <Eigen/Dense>
 #include <algorithm>

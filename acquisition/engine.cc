@@ -238,17 +238,7 @@ Status Engine::ExposeFrames(Exposed& e, const ExposurePolicy& x, double t, devic
       continue;
     }
     stats_.exposure_s += t;
-    // The last frame is left to read out while the stages move on. A camera that cannot say
-    // when its exposure ends, or a failed Expose (nothing has moved), takes it whole.
-    if (k == x.frames - 1 && !e.background && camera_.ReportsExposureEnd() &&
-        camera_.Expose().ok()) {
-      e.in_readout = true;
-      ++stats_.overlapped_readouts;
-      continue;
-    }
-    auto f = camera_.Snap();
-    if (!f.ok()) return f.error();
-    e.acc.Add(f->image);
+    if (Status s = TakeFrame(e, e.acc, k == x.frames - 1 && !e.background); !s.ok()) return s;
   }
   if (monitor_ != nullptr) {
     auto w = MonitorW();
@@ -266,15 +256,22 @@ Status Engine::ExposeBackground(Exposed& e, int frames, double t) {
     if (Interrupted()) return Error{ErrorCode::kAborted, "interrupted between frames"};
     ++stats_.background_frames;
     stats_.exposure_s += t;
-    if (k == frames - 1 && camera_.ReportsExposureEnd() && camera_.Expose().ok()) {
-      e.in_readout = true;
-      ++stats_.overlapped_readouts;
-      continue;
-    }
-    auto f = camera_.Snap();
-    if (!f.ok()) return f.error();
-    e.bg.Add(f->image);
+    if (Status s = TakeFrame(e, e.bg, k == frames - 1); !s.ok()) return s;
   }
+  return OkStatus();
+}
+
+// The last frame is left to read out while the stages move on. A camera that cannot say when its
+// exposure ends, or a failed Expose (nothing has moved), takes it whole.
+Status Engine::TakeFrame(Exposed& e, RectAccumulator& into, bool last) {
+  if (last && camera_.ReportsExposureEnd() && camera_.Expose().ok()) {
+    e.in_readout = true;
+    ++stats_.overlapped_readouts;
+    return OkStatus();
+  }
+  auto f = camera_.Snap();
+  if (!f.ok()) return f.error();
+  into.Add(f->image);
   return OkStatus();
 }
 

@@ -173,6 +173,9 @@ class Engine {
                       std::optional<double> first_reading);
   // The background's frames with the beam blocked into e.bg; the last left in readout.
   Status ExposeBackground(Exposed& e, int frames, double t);
+  // One frame into `into`, or, the `last` of a point's, left in readout (e.in_readout) where the
+  // camera can say when its exposure ends.
+  Status TakeFrame(Exposed& e, RectAccumulator& into, bool last);
   // Retrieves the last frame if it is in readout, then reduces and stores the point. A failed
   // retrieval leaves e.in_readout set (the caller retakes the frame); nothing is stored.
   Result<Measurement> Complete(Exposed& e);

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "acquisition/point_bench.h"
+#include "acquisition/point_simulator.h"
 #include "acquisition/strategy.h"
 #include "fitting/model.h"
 #include "fitting/sample.h"
@@ -97,7 +97,7 @@ RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points
   const std::optional<LobeForecast> forecast =
       ForecastFor(plan.specimen, bench, linear_limit_adu, max_ranging_tries);
   RunEstimate e;
-  // An adaptive plan on a bench whose noise is known: its runs simulated on a point bench like
+  // An adaptive plan on a bench whose noise is known: its runs simulated on a point simulator like
   // it, to the target or the budget; the median, with the range in the basis.
   if (adaptive && forecast && forecast->bench.noise) {
     auto runs = ForecastAdaptive(plan, points, BenchLike(*forecast, *forecast->bench.noise, axes));

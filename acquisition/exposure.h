@@ -104,7 +104,7 @@ struct RunEstimate {
 // the basis says what is missing). linear_limit_adu and
 // max_ranging_tries are the engine's (EngineOptions). An adaptive plan, when `bench` has a noise
 // calibration and the specimen an expected width: its runs simulated to the target or the budget
-// (point_bench.h, ForecastAdaptive), the median as the estimate and the 10-90 % range in the
+// (point_simulator.h, ForecastAdaptive), the median as the estimate and the 10-90 % range in the
 // basis; else its coarse scan and at most its budget. The one choice of basis behind a run's
 // stored estimate (Storage's EstimateRun) and a schedule's dry run.
 RunEstimate EstimateOn(const Plan& plan, const std::vector<PlannedPoint>& points,

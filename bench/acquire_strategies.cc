@@ -1,7 +1,7 @@
 // Bench time against alpha error for the acquisition strategies (issue #17; docs/acquisition.md):
 // uniform grids, the lobe strategy on the same grids, and adaptive runs at budgets that are
 // fractions of the finest uniform grid's bench time, on ground, etched and antiglare glass, each
-// over `repeats` simulated runs (acquisition/point_bench.h: the instrument at the level of its
+// over `repeats` simulated runs (acquisition/point_simulator.h: the instrument at the level of its
 // points). Prints a Markdown table and writes JSON for bench/plot_acquire.py.
 //
 // Usage: acquire_strategies [REPEATS=20] [OUT.json]
@@ -17,7 +17,7 @@
 
 #include "acquisition/exposure.h"
 #include "acquisition/plan.h"
-#include "acquisition/point_bench.h"
+#include "acquisition/point_simulator.h"
 #include "acquisition/strategy.h"
 
 namespace {
@@ -70,7 +70,7 @@ Row Measure(const Case& c, const Plan& plan, const std::string& setting, int rep
   std::vector<double> times, errors, points, rel;
   int covered = 0;
   for (int r = 0; r < repeats; ++r) {
-    PointBenchOptions o;
+    PointSimulatorOptions o;
     o.alpha = c.alpha;
     o.seed = 1000 + static_cast<std::uint64_t>(r);
     auto run = SimulateRun(plan, grid, o);
@@ -119,12 +119,12 @@ struct ForecastRow {
 
 ForecastRow Forecast(const Case& c, const Case& other, double target, int repeats) {
   ForecastRow row{c.name, other.name, target};
-  PointBenchOptions truth;
+  PointSimulatorOptions truth;
   truth.readout_s = 0;
   truth.alpha = other.alpha;
   truth.seed = 77;
   const Plan first = PlanFor(other, 2, StrategyKind::kUniform);
-  PointBench bench(truth);
+  PointSimulator bench(truth);
   std::vector<Observation> seen;
   for (const PlannedPoint& p : ExpandGrid(first, PlanContext{}))
     if (!p.skipped) seen.push_back(bench.Measure(p, first.exposure));
@@ -200,7 +200,8 @@ int main(int argc, char** argv) {
     }
   }
   std::printf(
-      "Bench time against alpha error, %d simulated runs per row (acquisition/point_bench.h)\n\n",
+      "Bench time against alpha error, %d simulated runs per row "
+      "(acquisition/point_simulator.h)\n\n",
       repeats);
   std::printf(
       "| specimen | strategy | setting | points | bench time (median) | |alpha error| median | "

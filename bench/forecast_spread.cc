@@ -2,9 +2,10 @@
 // measured once on the simulated instrument and fitted into the bench's throughput and noise
 // calibration; then the ground glass, never measured, is run adaptively to its target once per
 // seed of the instrument's noise (the camera's, the lamp's, the meter's), each run on a copy of
-// that store so that each is priced as a first run. Each run's stored estimate (the point bench's
-// median of 20 simulated runs) is set against the exposure the run took. EstimateBeforeTheFirstRun
-// checks one realisation (seed 1) to 30 %; this shows the spread of the realisations.
+// that store so that each is priced as a first run. Each run's stored estimate (the point
+// simulator's median of 20 simulated runs) is set against the exposure the run took.
+// EstimateBeforeTheFirstRun checks one realisation (seed 1) to 30 %; this shows the spread of the
+// realisations.
 //
 //   build-release/bench/forecast_spread [runs=8] [clock_speed=300]
 //   FORECAST_KEEP=DIR keeps each seed's store there (seed_N.sqlite: its runs, choices and events)

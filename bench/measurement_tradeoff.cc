@@ -40,7 +40,7 @@
 #include "common/bench_angles.h"
 #include "fitting/fitter.h"
 #include "fitting/response.h"
-#include "sim/scene/bench.h"
+#include "sim/scene/scene.h"
 #include "sim/truth/ground_truth.h"
 
 using namespace gonio;

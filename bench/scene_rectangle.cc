@@ -7,7 +7,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "sim/scene/bench.h"
+#include "sim/scene/scene.h"
 #include "sim/truth/ground_truth.h"
 
 using namespace gonio::sim;

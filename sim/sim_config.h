@@ -11,8 +11,8 @@
 #include "sim/camera/camera.h"
 #include "sim/faults/fault_plan.h"
 #include "sim/monitor/power_meter.h"
-#include "sim/scene/bench.h"
 #include "sim/scene/lamp.h"
+#include "sim/scene/scene.h"
 #include "sim/stage/axis.h"
 
 namespace gonio::sim {

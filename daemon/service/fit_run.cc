@@ -5,7 +5,7 @@
 #include <memory>
 #include <optional>
 
-#include "fitting/protocol.h"
+#include "fitting/fit_protocol.h"
 #include "fitting/sample.h"
 #include "fitting/summary_json.h"
 
@@ -81,7 +81,7 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
   auto all = RunSamples(db, run);
   if (!all.ok()) return all.error();
   const std::vector<fitting::Sample>& samples = *all;
-  fitting::ProtocolOptions po;
+  fitting::FitProtocolOptions po;
   po.models = *specs;
   po.base.eta = info->specimen_eta;
   // A floor only if the data need it; none where each point's background was measured.
@@ -91,9 +91,9 @@ Result<std::vector<RunFit>> FitRun(acquisition::Storage& db, std::int64_t run,
                                           "run " + std::to_string(run) + " point");
       !v.ok())
     return v.error();
-  auto protocol = fitting::RunProtocol(samples, po);
+  auto protocol = fitting::RunFitProtocol(samples, po);
   if (!protocol.ok()) return protocol.error();
-  const fitting::ProtocolResult& p = *protocol;
+  const fitting::FitProtocolResult& p = *protocol;
   std::vector<RunFit> out;
   for (std::size_t k = 0; k < p.joint_fits.size(); ++k) {
     const fitting::FitSummary& f = p.curve_fits()[k];

@@ -1,9 +1,9 @@
 // Fitting a stored run (goniod: a schedule's "fit" after each run, POST /api/v1/runs/{id}/fit),
-// by the protocol gonio-fit follows (fitting/protocol.h). When the run has a normal-incidence sweep
-// and others beside it, the fit stored for each model is the normal-incidence one (Walter 2007
-// section 6), with its predictions of the other incidences, the joint fit of all of them and the
-// model choice beside it in the stored parameters; otherwise the fit of all samples. Each model's
-// summary is stored in the run's fit_results and returned.
+// by the protocol gonio-fit follows (fitting/fit_protocol.h). When the run has a normal-incidence
+// sweep and others beside it, the fit stored for each model is the normal-incidence one (Walter
+// 2007 section 6), with its predictions of the other incidences, the joint fit of all of them and
+// the model choice beside it in the stored parameters; otherwise the fit of all samples. Each
+// model's summary is stored in the run's fit_results and returned.
 #pragma once
 
 #include <chrono>

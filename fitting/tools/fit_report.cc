@@ -133,7 +133,7 @@ void PrintFits(std::ostream& out, const std::string& title, const std::vector<Fi
 }
 
 // Walter's Figures 10-11: how well each normal-incidence fit predicts the other incidences.
-void PrintPredictions(std::ostream& out, const ProtocolResult& r) {
+void PrintPredictions(std::ostream& out, const FitProtocolResult& r) {
   out << "\nPrediction of the other incidences from the normal-incidence fit\n"
          "(rms relative error over samples above 1 % of the peak, chi2/n in brackets):\n";
   std::string line = Cell("theta_l", 10);
@@ -150,7 +150,7 @@ void PrintPredictions(std::ostream& out, const ProtocolResult& r) {
 
 }  // namespace
 
-void PrintSamplesLine(std::ostream& out, std::size_t samples, const ProtocolResult& result,
+void PrintSamplesLine(std::ostream& out, std::size_t samples, const FitProtocolResult& result,
                       double eta, bool eta_fitted) {
   std::ostringstream s;
   s << "gonio-fit: " << samples << " samples, " << result.groups.size()
@@ -168,7 +168,7 @@ void PrintSamplesLine(std::ostream& out, std::size_t samples, const ProtocolResu
       out << "  " << TableName(f.model) << ": eta " << PlusMinus(f.eta, 3) << "\n";
 }
 
-void PrintProtocolResult(std::ostream& out, const ProtocolResult& result,
+void PrintProtocolResult(std::ostream& out, const FitProtocolResult& result,
                          const ReportOptions& options) {
   if (result.protocol) {
     PrintFits(out,

@@ -9,8 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "fitting/fit_protocol.h"
 #include "fitting/fitter.h"
-#include "fitting/protocol.h"
 
 namespace gonio::fitting {
 
@@ -21,12 +21,12 @@ struct ReportOptions {
 };
 
 // The header line: samples, incidences and what was held fixed.
-void PrintSamplesLine(std::ostream& out, std::size_t samples, const ProtocolResult& result,
+void PrintSamplesLine(std::ostream& out, std::size_t samples, const FitProtocolResult& result,
                       double eta, bool eta_fitted);
 
 // The fits of `result` under their titles: the normal-incidence fits and their predictions of
 // the other incidences (under Walter's protocol), then the joint fit and the model choice.
-void PrintProtocolResult(std::ostream& out, const ProtocolResult& result,
+void PrintProtocolResult(std::ostream& out, const FitProtocolResult& result,
                          const ReportOptions& options);
 
 }  // namespace gonio::fitting

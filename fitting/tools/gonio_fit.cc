@@ -24,8 +24,8 @@
 #include "common/progress_line.h"
 #include "common/wrap.h"
 #include "fitting/empirical_d.h"
+#include "fitting/fit_protocol.h"
 #include "fitting/fitter.h"
-#include "fitting/protocol.h"
 #include "fitting/samples_csv.h"
 #include "fitting/summary_json.h"
 #include "fitting/tools/fit_report.h"
@@ -46,7 +46,7 @@ std::vector<std::string> Split(const std::string& s) {
 // --out: the curves of the fits that describe the lobe, the empirical and fitted D, and the JSON
 // summary of every fit and the model choice.
 Status WriteOutputs(const std::string& out_dir, const std::string& csv_path,
-                    std::span<const Sample> samples, const ProtocolResult& result) {
+                    std::span<const Sample> samples, const FitProtocolResult& result) {
   const std::vector<FitSummary>& normal_fits = result.normal_fits;
   const std::vector<FitSummary>& joint_fits = result.joint_fits;
   const ModelChoice& choice = result.choice;
@@ -215,7 +215,7 @@ int main(int argc, char** argv) {
     return std::lround(
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
   };
-  ProtocolOptions protocol;
+  FitProtocolOptions protocol;
   protocol.models = c.models;
   protocol.base = c.base;
   if (c.verbose) {
@@ -229,7 +229,7 @@ int main(int argc, char** argv) {
     if (progress.terminal())
       protocol.base.progress = [&](const std::string& s) { progress.Step(s); };
   }
-  auto run = RunProtocol(*samples, protocol);
+  auto run = RunFitProtocol(*samples, protocol);
   progress.Done();
   if (!run) {
     std::cerr << "gonio-fit: error: " << run.error().message << "\n";

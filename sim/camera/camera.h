@@ -34,8 +34,8 @@
 #include "sim/camera/sensor.h"
 #include "sim/clock.h"
 #include "sim/faults/fault_plan.h"
-#include "sim/scene/bench.h"
 #include "sim/scene/lamp.h"
+#include "sim/scene/scene.h"
 
 struct _ArvGvFakeCamera;
 struct _ArvFakeCamera;

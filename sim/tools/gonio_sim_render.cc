@@ -19,7 +19,7 @@
 #include <sstream>
 #include <string>
 
-#include "sim/scene/bench.h"
+#include "sim/scene/scene.h"
 #include "sim/sim_config.h"
 #include "sim/truth/ground_truth.h"
 

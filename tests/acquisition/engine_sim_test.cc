@@ -746,7 +746,7 @@ TEST_F(EngineOnTheDemoLamp, SigmaIsItsComponentsAndRepeatedRunsAgreeWithinIt) {
 // priced from its catalogue width (0.344) through it, and measured on a bench with the ground
 // glass in it. The estimate's exposure time (frames, ranging tries, darks) must be within 30 % of
 // the engine's; the plan's initial exposure, the only basis before, is far off. Then an adaptive
-// plan of the ground glass with a target: its estimate simulates it (point_bench.h,
+// plan of the ground glass with a target: its estimate simulates it (point_simulator.h,
 // ForecastAdaptive) on the etched run's calibration, and must be within 30 % of the run too.
 TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSpecimen) {
   const std::string db_path = (std::filesystem::temp_directory_path() /
@@ -816,10 +816,10 @@ TEST(EstimateBeforeTheFirstRun, TheExpectedLobeAtTheBenchsThroughputPricesANewSp
   EXPECT_NEAR(priced.exposure_s / exposed_s, 1.0, 0.3);
   EXPECT_LT(naive.exposure_s / exposed_s, 0.3) << "the old basis was not far off: a weak test";
 
-  {  // An adaptive plan of the ground glass, forecast by simulating it on a point bench calibrated
-     // on the etched glass's run (its throughput and its points' sigmas), then run to its target
-     // on the same bench (one simulated camera per machine). One realisation: the spread of real
-     // runs about the forecast is bench/forecast_spread.cc's (scripts/bench.sh forecast).
+  {  // An adaptive plan of the ground glass, forecast by simulating it on a point simulator
+     // calibrated on the etched glass's run (its throughput and its points' sigmas), then run to
+     // its target on the same bench (one simulated camera per machine). One realisation: the spread
+     // of real runs about the forecast is bench/forecast_spread.cc's (scripts/bench.sh forecast).
     auto aplanned = gonio::testing::ForecastPlan(db_path, "ground-glass-G1", inst.axes,
                                                  gonio::testing::kForecastAdaptive);
     ASSERT_TRUE(aplanned.ok()) << aplanned.error().message;

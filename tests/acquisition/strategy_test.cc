@@ -1,7 +1,7 @@
 // Strategies (acquisition/strategy.h, issue #17): plans that name one are checked with file:line;
 // the lobe and the coarse scan select what they say; the next-point choice is the one a brute
 // force over the candidates finds; the noise model recovers known coefficients; an adaptive run
-// stops at its target or its budget and says which; on the point bench it reaches the uniform
+// stops at its target or its budget and says which; on the point simulator it reaches the uniform
 // 1 deg grid's sigma(alpha) at a quarter of its bench time, with honest intervals.
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 
 #include "acquisition/exposure.h"
 #include "acquisition/plan.h"
-#include "acquisition/point_bench.h"
+#include "acquisition/point_simulator.h"
 #include "acquisition/strategy.h"
 
 namespace gonio::acquisition {
@@ -308,7 +308,7 @@ TEST(Strategy, TheNextPointIsTheOneThatShrinksAlphasVarianceMostPerSecond) {
   EXPECT_NE(chosen[0].Reason().find("sigma(alpha)/alpha"), std::string::npos);
 }
 
-Plan PointBenchPlan(double step, StrategyKind kind) {
+Plan PointSimulatorPlan(double step, StrategyKind kind) {
   Plan p;
   p.specimen.name = "ground-glass-G1";
   p.specimen.eta = 1.51;
@@ -330,26 +330,26 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-// The issue's criterion on the point bench (ground glass; scripts/bench.sh acquire charts all
+// The issue's criterion on the point simulator (ground glass; scripts/bench.sh acquire charts all
 // three specimens over 20 runs): adaptive at a quarter of the uniform 1 deg grid's bench time
 // gets a sigma(alpha) at least as small, and its 2 sigma intervals cover the truth.
 TEST(Strategy, AdaptiveMatchesTheUniformGridAtAQuarterOfItsBenchTime) {
-  const Plan uniform = PointBenchPlan(1, StrategyKind::kUniform);
+  const Plan uniform = PointSimulatorPlan(1, StrategyKind::kUniform);
   const std::vector<PlannedPoint> grid = ExpandGrid(uniform, PlanContext{});
   std::vector<double> uniform_s, uniform_rel, adaptive_s, adaptive_rel;
   int covered = 0, runs = 10;
   for (int r = 0; r < runs; ++r) {
-    PointBenchOptions o;
+    PointSimulatorOptions o;
     o.seed = 100 + static_cast<std::uint64_t>(r);
     auto u = SimulateRun(uniform, grid, o);
     ASSERT_TRUE(u.ok()) << u.error().message;
     uniform_s.push_back(u->spent_s);
     uniform_rel.push_back(u->fit.width.sigma / u->fit.width.value);
   }
-  Plan adaptive = PointBenchPlan(1, StrategyKind::kAdaptive);
+  Plan adaptive = PointSimulatorPlan(1, StrategyKind::kAdaptive);
   adaptive.strategy.budget_s = Median(uniform_s) / 4;
   for (int r = 0; r < runs; ++r) {
-    PointBenchOptions o;
+    PointSimulatorOptions o;
     o.seed = 200 + static_cast<std::uint64_t>(r);
     auto a = SimulateRun(adaptive, grid, o);
     ASSERT_TRUE(a.ok()) << a.error().message;
@@ -365,13 +365,13 @@ TEST(Strategy, AdaptiveMatchesTheUniformGridAtAQuarterOfItsBenchTime) {
 }
 
 TEST(Strategy, AnAdaptiveRunStopsAtItsTargetOrAtItsBudgetAndSaysWhich) {
-  const Plan base = PointBenchPlan(1, StrategyKind::kAdaptive);
+  const Plan base = PointSimulatorPlan(1, StrategyKind::kAdaptive);
   const std::vector<PlannedPoint> grid = ExpandGrid(base, PlanContext{});
   // A target it cannot reach: the budget stops it, and says the target was not reached.
   Plan unreachable = base;
   unreachable.strategy.budget_s = 1500;
   unreachable.strategy.target_rel_sigma_alpha = 1e-9;
-  auto a = SimulateRun(unreachable, grid, PointBenchOptions{});
+  auto a = SimulateRun(unreachable, grid, PointSimulatorOptions{});
   ASSERT_TRUE(a.ok()) << a.error().message;
   EXPECT_NE(a->stop.find("stopped at the budget"), std::string::npos) << a->stop;
   EXPECT_NE(a->stop.find("the target was not reached"), std::string::npos) << a->stop;
@@ -380,7 +380,7 @@ TEST(Strategy, AnAdaptiveRunStopsAtItsTargetOrAtItsBudgetAndSaysWhich) {
   Plan reachable = base;
   reachable.strategy.budget_s = 1e6;
   reachable.strategy.target_rel_sigma_alpha = 1e-4;
-  auto b = SimulateRun(reachable, grid, PointBenchOptions{});
+  auto b = SimulateRun(reachable, grid, PointSimulatorOptions{});
   ASSERT_TRUE(b.ok()) << b.error().message;
   EXPECT_NE(b->stop.find("reached sigma(alpha)/alpha"), std::string::npos) << b->stop;
   EXPECT_LE(b->fit.width.sigma / b->fit.width.value, 1e-4);
@@ -390,12 +390,12 @@ TEST(Strategy, AnAdaptiveRunStopsAtItsTargetOrAtItsBudgetAndSaysWhich) {
 // A batch ends at the first choice predicted to reach the target (holding at least `batch`):
 // the run spends nothing past what its target needs, by its own prediction.
 TEST(Strategy, ABatchEndsWhereItsPredictionReachesTheTarget) {
-  Plan plan = PointBenchPlan(1, StrategyKind::kAdaptive);
+  Plan plan = PointSimulatorPlan(1, StrategyKind::kAdaptive);
   plan.strategy.budget_s = 1e6;
   plan.strategy.target_rel_sigma_alpha = 2e-5;
   std::vector<PlannedPoint> points = ExpandGrid(plan, PlanContext{});
   SelectByStrategy(plan, &points);
-  PointBench bench(PointBenchOptions{});
+  PointSimulator bench(PointSimulatorOptions{});
   std::vector<Observation> seen;
   for (const PlannedPoint& p : points)
     if (!p.skipped) seen.push_back(bench.Measure(p, CoarseExposure(plan)));
@@ -431,12 +431,12 @@ TEST(Strategy, ABatchEndsWhereItsPredictionReachesTheTarget) {
 // and a run that waited for it to converge went on to its budget. Its sigma is inflated by
 // sqrt(chi2/dof), so the run stops at the target on it and says the fit was poor.
 TEST(Strategy, AnAdaptiveRunStopsAtItsTargetWhenThePointModelFitsPoorly) {
-  Plan plan = PointBenchPlan(1, StrategyKind::kAdaptive);
+  Plan plan = PointSimulatorPlan(1, StrategyKind::kAdaptive);
   plan.strategy.budget_s = 2e5;
   plan.strategy.target_rel_sigma_alpha = 5e-5;
   std::vector<PlannedPoint> points = ExpandGrid(plan, PlanContext{});
   SelectByStrategy(plan, &points);
-  PointBench bench(PointBenchOptions{});
+  PointSimulator bench(PointSimulatorOptions{});
   // A lobe tilted 5 % at 40 degrees either side of the refracted direction (a rectangle off the
   // optical axis), which no width of the point model takes up.
   auto tilted = [&](const PlannedPoint& p, const ExposurePolicy& exposure) {
@@ -469,10 +469,10 @@ TEST(Strategy, AnAdaptiveRunStopsAtItsTargetWhenThePointModelFitsPoorly) {
 // Before the run, the forecast says how many simulated runs fall short of the target, why, how far,
 // and what would help: a tight budget needs more time, a coarse grid more candidates.
 TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
-  Plan tight = PointBenchPlan(2, StrategyKind::kAdaptive);
+  Plan tight = PointSimulatorPlan(2, StrategyKind::kAdaptive);
   tight.strategy.budget_s = 1500;
   tight.strategy.target_rel_sigma_alpha = 1e-9;
-  auto a = ForecastAdaptive(tight, ExpandGrid(tight, PlanContext{}), PointBenchOptions{}, 3);
+  auto a = ForecastAdaptive(tight, ExpandGrid(tight, PlanContext{}), PointSimulatorOptions{}, 3);
   ASSERT_TRUE(a.ok()) << a.error().message;
   EXPECT_EQ(a->reached, 0);
   EXPECT_EQ(a->at_budget, 3);
@@ -485,10 +485,10 @@ TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
 
   // A 20 deg grid with time to spare: every candidate is taken again and again until the planner
   // has nothing left that adds to alpha. More time would not help; a finer grid might.
-  Plan coarse = PointBenchPlan(20, StrategyKind::kAdaptive);
+  Plan coarse = PointSimulatorPlan(20, StrategyKind::kAdaptive);
   coarse.strategy.budget_s = 1e8;
   coarse.strategy.target_rel_sigma_alpha = 1e-9;
-  auto b = ForecastAdaptive(coarse, ExpandGrid(coarse, PlanContext{}), PointBenchOptions{}, 2);
+  auto b = ForecastAdaptive(coarse, ExpandGrid(coarse, PlanContext{}), PointSimulatorOptions{}, 2);
   ASSERT_TRUE(b.ok()) << b.error().message;
   EXPECT_EQ(b->exhausted, 2) << b->Describe();
   // A start on this grid walks to alpha -> infinity, k -> 0 (a flat lobe under the floor); Ceres
@@ -498,11 +498,11 @@ TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
   EXPECT_NE(b->Describe().find("a finer view_step_deg"), std::string::npos) << b->Describe();
 
   // A target the runs reach: nothing to warn of.
-  Plan reachable = PointBenchPlan(2, StrategyKind::kAdaptive);
+  Plan reachable = PointSimulatorPlan(2, StrategyKind::kAdaptive);
   reachable.strategy.budget_s = 1e6;
   reachable.strategy.target_rel_sigma_alpha = 1e-4;
   auto c =
-      ForecastAdaptive(reachable, ExpandGrid(reachable, PlanContext{}), PointBenchOptions{}, 3);
+      ForecastAdaptive(reachable, ExpandGrid(reachable, PlanContext{}), PointSimulatorOptions{}, 3);
   ASSERT_TRUE(c.ok()) << c.error().message;
   EXPECT_EQ(c->reached, 3) << c->Describe();
   EXPECT_EQ(c->Describe().find("stopped at"), std::string::npos) << c->Describe();
@@ -514,13 +514,13 @@ TEST(Strategy, AForecastSaysBeforeTheRunWhyRunsFallShortOfTheirTarget) {
 // new specimen's catalogue lobe, and the plan simulated to its target. The forecast is checked
 // against runs on the true bench, which the forecast never sees.
 TEST(Strategy, AnAdaptivePlansForecastFromAnotherSpecimensRunPredictsItsTime) {
-  PointBenchOptions truth;
+  PointSimulatorOptions truth;
   truth.readout_s = 0;  // the stored bench time has none
   truth.seed = 7;
   truth.alpha = 0.493;
-  Plan etched = PointBenchPlan(2, StrategyKind::kUniform);
+  Plan etched = PointSimulatorPlan(2, StrategyKind::kUniform);
   etched.exposure.frames = 4;
-  PointBench first(truth);
+  PointSimulator first(truth);
   std::vector<Observation> seen;
   for (const PlannedPoint& p : ExpandGrid(etched, PlanContext{}))
     if (!p.skipped) seen.push_back(first.Measure(p, etched.exposure));
@@ -539,7 +539,7 @@ TEST(Strategy, AnAdaptivePlansForecastFromAnotherSpecimensRunPredictsItsTime) {
   bench.noise = *noise;
   const LobeForecast lobe{bench, 0.344, 1.51, truth.full_well_e / truth.gain_e_per_adu, 12};
 
-  Plan plan = PointBenchPlan(1, StrategyKind::kAdaptive);
+  Plan plan = PointSimulatorPlan(1, StrategyKind::kAdaptive);
   plan.exposure.frames = 4;
   plan.strategy.budget_s = 20000;
   plan.strategy.target_rel_sigma_alpha = 2e-5;

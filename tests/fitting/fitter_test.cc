@@ -3,8 +3,8 @@
 // robust loss, eta, and the empirical D.
 #include "fitting/fitter.h"
 #include "fitting/empirical_d.h"
+#include "fitting/fit_protocol.h"
 #include "fitting/model_choice.h"
-#include "fitting/protocol.h"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 // The instrument response (fitting/response.h) against the simulated scene's rendering of the
-// same rectangle (sim/scene/bench.h traces every pixel on its own path), and fits that use it.
+// same rectangle (sim/scene/scene.h traces every pixel on its own path), and fits that use it.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -12,7 +12,7 @@
 #include "fitting/response.h"
 #include "fitting/samples_csv.h"
 #include "sim/scene/aperture.h"
-#include "sim/scene/bench.h"
+#include "sim/scene/scene.h"
 #include "sim/truth/ground_truth.h"
 
 namespace gonio {

@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "common/bench_angles.h"
-#include "sim/scene/bench.h"
+#include "sim/scene/scene.h"
 #include "sim/sim_config.h"
 #include "sim/truth/ground_truth.h"
 

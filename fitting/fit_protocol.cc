@@ -1,4 +1,4 @@
-#include "fitting/protocol.h"
+#include "fitting/fit_protocol.h"
 
 #include <cmath>
 #include <string>
@@ -8,8 +8,8 @@ namespace gonio::fitting {
 namespace {
 
 // `what`: the samples' part, for progress ("normal incidence", "all incidences").
-Result<std::vector<FitSummary>> FitEach(std::span<const Sample> samples, const ProtocolOptions& o,
-                                        const std::string& what) {
+Result<std::vector<FitSummary>> FitEach(std::span<const Sample> samples,
+                                        const FitProtocolOptions& o, const std::string& what) {
   std::vector<FitSummary> fits;
   for (const ModelSpec& m : o.models) {
     FitOptions fo = o.base;
@@ -40,15 +40,15 @@ Result<std::vector<ModelSpec>> ParseModels(std::span<const std::string> names, o
   return specs;
 }
 
-bool ProtocolResult::AnyFitted() const {
+bool FitProtocolResult::AnyFitted() const {
   for (const FitSummary& f : joint_fits)
     if (f.status != FitStatus::kFailed) return true;
   return false;
 }
 
-Result<ProtocolResult> RunProtocol(std::span<const Sample> samples,
-                                   const ProtocolOptions& options) {
-  ProtocolResult r;
+Result<FitProtocolResult> RunFitProtocol(std::span<const Sample> samples,
+                                         const FitProtocolOptions& options) {
+  FitProtocolResult r;
   r.groups = GroupByIncidence(samples);
   const IncidenceGroup* normal = nullptr;
   for (const IncidenceGroup& g : r.groups)

@@ -3,7 +3,7 @@
 // which the image-level simulator (sim/, a few seconds per point) cannot afford. Model no more
 // than the question needs: where a run spends its time and what each point's value and sigma are.
 //
-// What it keeps of the bench (sim/ defaults: sim/camera/sensor.h, sim/scene/bench.h):
+// What it keeps of the bench (sim/ defaults: sim/camera/sensor.h, sim/scene/scene.h):
 //   - the signal: electrons_per_s_per_value x (k f |cos theta_l|) per pixel (Beckmann), plus the
 //     stray light, in every one of the rectangle's `pixels`;
 //   - the engine's ranging (JudgeExposure on the rectangle's mean, from the previous point's
@@ -29,7 +29,7 @@
 
 namespace gonio::acquisition {
 
-struct PointBenchOptions {
+struct PointSimulatorOptions {
   double alpha = 0.344, eta = 1.51, k = 1.0;  // the specimen's truth (Beckmann)
   double electrons_per_s_per_value = 1000;    // per pixel, per unit of stored value
   double stray_e_per_s = 2.0;                 // per pixel
@@ -49,9 +49,9 @@ struct PointBenchOptions {
   std::uint64_t seed = 1;
 };
 
-class PointBench {
+class PointSimulator {
  public:
-  explicit PointBench(PointBenchOptions o) : o_(o), rng_(o.seed) {}
+  explicit PointSimulator(PointSimulatorOptions o) : o_(o), rng_(o.seed) {}
 
   // Measures one point as the engine would under `exposure`: its value, sigma, final exposure and
   // the bench seconds it took (ranging tries, frames, a dark set at a new exposure, the move).
@@ -63,7 +63,7 @@ class PointBench {
   double moved_s() const { return moved_s_; }  // of which moves and settling
 
  private:
-  PointBenchOptions o_;
+  PointSimulatorOptions o_;
   std::mt19937_64 rng_;
   double last_exposure_s_ = 0;
   StageTargets at_;
@@ -76,9 +76,9 @@ class PointBench {
   double spent_s_ = 0, moved_s_ = 0;
 };
 
-// One run of `plan` on a point bench: the grid's points its strategy selects (SelectByStrategy),
-// measured in order, then for an adaptive plan its choices (RunAdaptive), and the fit of it all
-// (FitSeen). The plan's darks policy replaces the options'.
+// One run of `plan` on a point simulator: the grid's points its strategy selects
+// (SelectByStrategy), measured in order, then for an adaptive plan its choices (RunAdaptive), and
+// the fit of it all (FitSeen). The plan's darks policy replaces the options'.
 struct SimulatedRun {
   fitting::FitSummary fit;
   double spent_s = 0;
@@ -90,20 +90,20 @@ struct SimulatedRun {
   bool stopped_at_budget = false;  // ... or at its budget (neither: it ran out of candidates)
 };
 Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoint>& grid,
-                                 PointBenchOptions options);
+                                 PointSimulatorOptions options);
 
 }  // namespace gonio::acquisition
 
 namespace gonio::acquisition {
 
-// A point bench that stands for a measured bench (the estimate before a run): the
+// A point simulator that stands for a measured bench (the estimate before a run): the
 // specimen's expected lobe at the bench's throughput (`lobe`: its k, floor, counts per value, dark
 // level and linear range) and the bench's noise per frame (`noise`, CalibrateFrameNoise on that
 // run's points). The rectangle is one "pixel" whose electrons per second per value is 1 / shot,
 // so that shot noise, read noise (read) and the lamp (lamp) come out as calibrated; moves as the
 // instrument prices them at `axes`; no readout (the stored bench time has none).
-PointBenchOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
-                            const std::vector<devices::AxisSettings>& axes);
+PointSimulatorOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
+                                const std::vector<devices::AxisSettings>& axes);
 
 // What an adaptive plan is expected to cost before it is run: `runs` simulated runs on `like`
 // (seeds 1..runs: the same inputs give the same forecast), each to its target or its budget.
@@ -121,6 +121,6 @@ struct AdaptiveForecast {
 // `points`: the plan's grid, or its points as ExpandPoints marked them (the candidates are
 // restored to the grid). An error if every run failed.
 Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedPoint> points,
-                                          const PointBenchOptions& like, int runs = 20);
+                                          const PointSimulatorOptions& like, int runs = 20);
 
 }  // namespace gonio::acquisition

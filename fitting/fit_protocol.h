@@ -37,7 +37,7 @@ struct PredictionError {
 std::vector<PredictionError> PredictIncidences(const FitSummary& fit,
                                                std::span<const Sample> samples);
 
-struct ProtocolOptions {
+struct FitProtocolOptions {
   std::vector<ModelSpec> models;  // fitted in this order
   FitOptions base;                // each fit's options, its model replaced
   // |theta_l| below this counts as normal incidence (a read-back angle is never exactly 0).
@@ -47,7 +47,7 @@ struct ProtocolOptions {
   std::function<void(const std::string&)> stage;
 };
 
-struct ProtocolResult {
+struct FitProtocolResult {
   std::vector<IncidenceGroup> groups;   // the samples by incidence, as GroupByIncidence orders them
   bool protocol = false;                // a normal-incidence sweep and at least one other incidence
   std::vector<FitSummary> normal_fits;  // per model; empty unless protocol
@@ -63,6 +63,7 @@ struct ProtocolResult {
 
 // Runs the protocol. Errors are Fit's (bad options or samples), naming the model; a solver's
 // failure is a fit with status kFailed, not an error.
-Result<ProtocolResult> RunProtocol(std::span<const Sample> samples, const ProtocolOptions& options);
+Result<FitProtocolResult> RunFitProtocol(std::span<const Sample> samples,
+                                         const FitProtocolOptions& options);
 
 }  // namespace gonio::fitting

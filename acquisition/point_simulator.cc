@@ -1,4 +1,4 @@
-#include "acquisition/point_bench.h"
+#include "acquisition/point_simulator.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,12 +8,13 @@
 
 namespace gonio::acquisition {
 
-double PointBench::Truth(const PlannedPoint& p) const {
+double PointSimulator::Truth(const PlannedPoint& p) const {
   const Provisional truth{o_.alpha, o_.k, o_.stray_e_per_s / o_.electrons_per_s_per_value, o_.eta};
   return truth.Value(p);
 }
 
-Observation PointBench::Measure(const PlannedPoint& p, const ExposurePolicy& x, double planned_s) {
+Observation PointSimulator::Measure(const PlannedPoint& p, const ExposurePolicy& x,
+                                    double planned_s) {
   Observation out;
   out.point = p;
   const double rate_e = Truth(p) * o_.electrons_per_s_per_value;  // per pixel
@@ -65,10 +66,10 @@ Observation PointBench::Measure(const PlannedPoint& p, const ExposurePolicy& x, 
 }
 
 Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoint>& grid,
-                                 PointBenchOptions options) {
+                                 PointSimulatorOptions options) {
   options.dark_frames = plan.darks.frames;
   options.dark_max_age_s = plan.darks.max_age_s;
-  PointBench bench(options);
+  PointSimulator bench(options);
   std::vector<PlannedPoint> points = grid;
   SelectByStrategy(plan, &points);
   std::vector<Observation> seen;
@@ -107,9 +108,9 @@ Result<SimulatedRun> SimulateRun(const Plan& plan, const std::vector<PlannedPoin
   return run;
 }
 
-PointBenchOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
-                            const std::vector<devices::AxisSettings>& axes) {
-  PointBenchOptions o;
+PointSimulatorOptions BenchLike(const LobeForecast& lobe, const FrameNoise& noise,
+                                const std::vector<devices::AxisSettings>& axes) {
+  PointSimulatorOptions o;
   o.alpha = lobe.alpha;
   o.eta = lobe.eta;
   o.k = lobe.bench.scale;
@@ -158,14 +159,14 @@ std::string AdaptiveForecast::Describe() const {
 }
 
 Result<AdaptiveForecast> ForecastAdaptive(const Plan& plan, std::vector<PlannedPoint> points,
-                                          const PointBenchOptions& like, int runs) {
+                                          const PointSimulatorOptions& like, int runs) {
   for (PlannedPoint& p : points)
     if (p.skipped && p.reason == kCandidateReason) p.skipped = false, p.reason.clear();
   AdaptiveForecast f;
   std::vector<double> times, exposures, short_rel;
   std::string first_error;
   for (int r = 1; r <= runs; ++r) {
-    PointBenchOptions o = like;
+    PointSimulatorOptions o = like;
     o.seed = static_cast<std::uint64_t>(r);
     auto run = SimulateRun(plan, points, o);
     ++f.runs;

@@ -1,4 +1,4 @@
-#include "sim/scene/bench.h"
+#include "sim/scene/scene.h"
 
 #include <cmath>
 #include <numbers>

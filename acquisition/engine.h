@@ -146,12 +146,16 @@ class Engine {
   Status MoveTo(const PlannedPoint& p, Measurement* m);
   // The beam block into the beam (true) or out of it; nothing without one.
   Status BlockBeam(bool blocked);
-  // What a run's measurement starts from (BeginRun).
+  // What a run's measurement starts from: the run as stored and its pending points.
   struct Begun {
     RunInfo info;
     std::vector<PlannedPoint> pending;
   };
+  // The run taken up and marked running, its shutter opened; a camera that does not answer
+  // leaves it paused (the error is the camera's).
   Result<Begun> BeginRun(std::int64_t run, const Plan& plan);
+  // A device error at point `index`: the stages stopped, the run paused, the error named with
+  // its run and point (an interrupt's as kAborted "interrupted").
   Status PauseOnFault(int index, const Error& err);
   // Auto-ranges, darks and exposes the point's frames at the stages' present position.
   Result<Exposed> ExposePoint(const PlannedPoint& p, const Plan& plan, Measurement m);

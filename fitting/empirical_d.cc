@@ -9,7 +9,6 @@
 namespace gonio::fitting {
 namespace {
 using optics::Vec3;
-constexpr double kDeg = optics::kPi / 180;
 }  // namespace
 
 std::vector<EmpiricalDPoint> EmpiricalD(std::span<const Sample> samples, double scale, double eta,
@@ -27,7 +26,7 @@ std::vector<EmpiricalDPoint> EmpiricalD(std::span<const Sample> samples, double 
     if (!(g.factor > 0)) continue;
     const double to_d = 1 / (scale * g.factor);
     EmpiricalDPoint p;
-    p.theta_h_deg = std::acos(std::clamp(g.h.z, -1.0, 1.0)) / kDeg;
+    p.theta_h_deg = std::acos(std::clamp(g.h.z, -1.0, 1.0)) / optics::kDeg;
     p.d = s.value * to_d;
     p.d_sigma = s.sigma * to_d;
     out.push_back(p);
@@ -40,7 +39,7 @@ std::vector<EmpiricalDPoint> EmpiricalD(std::span<const Sample> samples, double 
 
 double FittedD(const FitSummary& fit, double theta_h_deg) {
   using namespace optics;
-  const Vec3<double> m = DirectionInPlane(theta_h_deg * kDeg);
+  const Vec3<double> m = DirectionInPlane(theta_h_deg * optics::kDeg);
   switch (fit.model.family) {
     case Family::kBeckmann:
       return BeckmannDistribution<double>(fit.width.value).D(m);

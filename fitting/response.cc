@@ -16,7 +16,6 @@ namespace gonio::fitting {
 namespace {
 
 using V = optics::Vec3<double>;
-constexpr double kDeg = optics::kPi / 180;
 
 bool PositiveFinite(double x) { return std::isfinite(x) && x > 0; }
 
@@ -275,8 +274,8 @@ Result<ResponseSetup> ResponseSetup::FromJson(const std::string& text) {
 }
 
 std::pair<V, V> NominalDirections(const StagePosition& at) {
-  const double s = at.sample_deg * kDeg, phi = at.azimuth_deg * kDeg;
-  return {TurnByMinus(InPlane(s), phi), TurnByMinus(InPlane(s - at.arm_deg * kDeg), phi)};
+  const double s = at.sample_deg * optics::kDeg, phi = at.azimuth_deg * optics::kDeg;
+  return {TurnByMinus(InPlane(s), phi), TurnByMinus(InPlane(s - at.arm_deg * optics::kDeg), phi)};
 }
 
 Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition& at,
@@ -284,8 +283,8 @@ Result<Response> ComputeResponse(const ResponseSetup& setup, const StagePosition
   if (Status v = setup.Validate(); !v.ok()) return v.error();
   if (!(std::isfinite(at.sample_deg) && std::isfinite(at.arm_deg) && std::isfinite(at.azimuth_deg)))
     return InvalidArgument("the stage position is not finite");
-  const double s = at.sample_deg * kDeg, phi = at.azimuth_deg * kDeg;
-  const V source_dir = InPlane(s), camera_dir = InPlane(s - at.arm_deg * kDeg);
+  const double s = at.sample_deg * optics::kDeg, phi = at.azimuth_deg * optics::kDeg;
+  const V source_dir = InPlane(s), camera_dir = InPlane(s - at.arm_deg * optics::kDeg);
   // The camera on the glass side looks through the lens (transmission); on the air side it
   // looks at the rough face (reflection).
   const bool reflection = camera_dir.z > 0;
@@ -437,7 +436,7 @@ Result<RectangleCoverage> CoverageOf(const ResponseSetup& setup, const StagePosi
   c.rays = static_cast<int>(r->rays.size());
   auto angle = [](const V& a, const V& b) {
     const double cosine = Dot(a, b) / std::sqrt(LengthSquared(a) * LengthSquared(b));
-    return std::acos(std::clamp(cosine, -1.0, 1.0)) / kDeg;
+    return std::acos(std::clamp(cosine, -1.0, 1.0)) / optics::kDeg;
   };
   double w = 0, v2 = 0, l2 = 0;
   for (const ResponseRay& ray : r->rays) {

@@ -5,14 +5,12 @@
 #include <sstream>
 
 namespace gonio::fitting {
-namespace {
-constexpr double kDeg = optics::kPi / 180;
-}
+namespace {}
 
 Sample SampleFromBenchAngles(double theta_l_deg, double phi_l_deg, double theta_v_deg,
                              double phi_v_deg, double value, double sigma) {
-  const double tl = theta_l_deg * kDeg, pl = phi_l_deg * kDeg;
-  const double tv = theta_v_deg * kDeg, pv = phi_v_deg * kDeg;
+  const double tl = theta_l_deg * optics::kDeg, pl = phi_l_deg * optics::kDeg;
+  const double tv = theta_v_deg * optics::kDeg, pv = phi_v_deg * optics::kDeg;
   Sample s;
   s.light = {std::sin(tl) * std::cos(pl), std::sin(tl) * std::sin(pl), std::cos(tl)};
   s.view = {std::sin(tv) * std::cos(pv), std::sin(tv) * std::sin(pv), -std::cos(tv)};
@@ -31,16 +29,16 @@ Sample SampleFromReflectionAngles(double theta_l_deg, double phi_l_deg, double t
 }
 
 double ThetaLightDeg(const Sample& s) {
-  const double t = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / kDeg;
+  const double t = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / optics::kDeg;
   return s.light.x < 0 ? -t : t;
 }
 
 double ThetaViewDeg(const Sample& s) {
   if (IsReflection(s)) {
-    const double t = std::acos(std::clamp(s.view.z, -1.0, 1.0)) / kDeg;
+    const double t = std::acos(std::clamp(s.view.z, -1.0, 1.0)) / optics::kDeg;
     return s.view.x > 0 ? -t : t;
   }
-  const double t = std::acos(std::clamp(-s.view.z, -1.0, 1.0)) / kDeg;
+  const double t = std::acos(std::clamp(-s.view.z, -1.0, 1.0)) / optics::kDeg;
   return s.view.x < 0 ? -t : t;
 }
 

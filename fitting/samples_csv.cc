@@ -163,14 +163,13 @@ Status WriteSamplesCsv(const std::string& path, std::span<const Sample> samples)
   std::ofstream out(path);
   if (!out) return Error{ErrorCode::kIo, path + ": cannot open for writing"};
   out << "theta_l_deg,phi_l_deg,theta_v_deg,phi_v_deg,value,sigma,side\n" << std::setprecision(17);
-  constexpr double kDeg = optics::kPi / 180;
   for (const Sample& s : samples) {
-    const double tl = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / kDeg;
-    const double pl = std::atan2(s.light.y, s.light.x) / kDeg;
+    const double tl = std::acos(std::clamp(s.light.z, -1.0, 1.0)) / optics::kDeg;
+    const double pl = std::atan2(s.light.y, s.light.x) / optics::kDeg;
     // A reflection view is the transmission view at the same angles turned to the air side.
     const optics::Vec3<double> v = IsReflection(s) ? -s.view : s.view;
-    const double tv = std::acos(std::clamp(-v.z, -1.0, 1.0)) / kDeg;
-    const double pv = std::atan2(v.y, v.x) / kDeg;
+    const double tv = std::acos(std::clamp(-v.z, -1.0, 1.0)) / optics::kDeg;
+    const double pv = std::atan2(v.y, v.x) / optics::kDeg;
     out << tl << ',' << pl << ',' << tv << ',' << pv << ',' << s.value << ',' << s.sigma << ','
         << (IsReflection(s) ? "reflection" : "transmission") << '\n';
   }

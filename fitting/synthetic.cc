@@ -7,13 +7,12 @@
 namespace gonio::fitting {
 
 std::vector<Sample> MakeSyntheticSweep(const SyntheticSweep& spec) {
-  constexpr double kDeg = optics::kPi / 180;
   std::vector<Sample> out;
   for (double tl : spec.theta_l_deg) {
     // Straight-through view angle for this incidence (Snell at the mean surface), or the mirror
     // direction in reflection.
     const double straight =
-        spec.reflection ? tl : -std::asin(std::sin(tl * kDeg) / spec.eta) / kDeg;
+        spec.reflection ? tl : -std::asin(std::sin(tl * optics::kDeg) / spec.eta) / optics::kDeg;
     std::vector<double> views;
     for (double tv = -spec.theta_v_max; tv <= spec.theta_v_max + 1e-9; tv += spec.theta_v_step)
       views.push_back(tv);

@@ -13,6 +13,7 @@
 namespace gonio::optics {
 
 inline constexpr double kPi = std::numbers::pi;
+inline constexpr double kDeg = kPi / 180;  // radians per degree
 inline constexpr double kInvPi = std::numbers::inv_pi;
 
 template <typename T>

@@ -27,7 +27,7 @@ std::optional<double> EstimateAlphaFromHalfWidth(std::span<const Sample> samples
   // theta_h (1 - 1/eta), and the reflected one by 2 theta_h; Beckmann's D falls to half at
   // tan(theta_h) = alpha sqrt(ln 2).
   const double deflection = IsReflection(*peak) ? 2 : 1 - 1 / eta;
-  const double theta_h = std::min(half_angle / deflection, 80 * optics::kPi / 180);
+  const double theta_h = std::min(half_angle / deflection, 80 * optics::kDeg);
   return std::tan(theta_h) / std::sqrt(std::log(2.0));
 }
 
